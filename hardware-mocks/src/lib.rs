@@ -1,0 +1,14 @@
+//! The simulated rig: hardware mocks that speak the real devices' protocols over real sockets,
+//! so the rig (and third-party clients such as PyPI `ur-rtde`) can run against them unchanged.
+//!
+//! - [`ur5e`]: a UR5e controller — RTDE server at 500 Hz, dashboard server, secondary interface
+//!   that accepts the rig's URScript control program, a trapezoidal moveL model and injectable
+//!   faults (protective stop, emergency stop, RTDE connection drop, delayed start
+//!   acknowledgement, text messages mid-handshake).
+//!
+//! Every mock takes its time from one [`rig_core::clock::Clock`], so the whole simulated rig can
+//! run faster than real time (`Clock::scaled`) or be stepped by a test (`Clock::manual`). The
+//! mocks run in-process (tests, `rig run` without hardware) or as separate processes through the
+//! `rig-mock` binary.
+
+pub mod ur5e;

@@ -1,0 +1,424 @@
+//! A simulated UR5e controller that speaks real RTDE over TCP.
+//!
+//! # Shape
+//!
+//! [`Ur5e::start`] binds three TCP listeners and spawns:
+//!
+//! - the **controller task**, ticking on the shared [`Clock`] at `max_frequency_hz` (500 Hz,
+//!   2 ms, on e-Series; 125 Hz on a CB3 variant); every tick is processed, late wake-ups catch up. Each tick advances the
+//!   [`controller`] model (motion, program, watchdog) and broadcasts a [`ControllerSnapshot`];
+//! - the **RTDE server** ([`rtde_server`]), one task per connection, which turns those
+//!   snapshots into data packages at each recipe's frequency and writes input packages into the
+//!   controller's registers;
+//! - the **dashboard server** ([`dashboard`]): power on, brake release, unlock protective stop,
+//!   play, stop, mode queries;
+//! - the **secondary interface** ([`script`]), which accepts the rig's URScript control program.
+//!
+//! All timing comes from the [`Clock`], so with [`Clock::scaled`] the simulated arm runs faster
+//! than real time and with [`Clock::manual`] a test steps it tick by tick
+//! ([`Ur5e::step_ticks`]).
+//!
+//! # Motion model
+//!
+//! `movel` follows a trapezoidal velocity profile with the commanded speed and acceleration
+//! (a triangle when the path is too short), computed analytically from the move's start tick
+//! ([`motion`]). The actual TCP pose is the profile's pose exactly — the real controller's
+//! tracking error is **not modelled** — and `target_TCP_pose` equals it. `actual_TCP_speed` is
+//! the profile's velocity: linear part along the line, angular part about the move's rotation
+//! axis. A command is read at the tick after its registers arrive, the move starts at that tick
+//! and is done (OUT_DONE_SEQ written) at the first tick at or after `start + duration`.
+//!
+//! # Program emulation
+//!
+//! The mock runs only the rig's own control program (recognised by
+//! [`rig_core::control::PROGRAM_MARKER`]); it emulates the register contract of
+//! [`rig_core::control`]: a changed IN_CMD_SEQ is acknowledged, a moveL sets OUT_STATUS Moving
+//! and OUT_DONE_SEQ when the TCP is at rest on the target, a Stop decelerates along the path
+//! with the commanded acceleration (stopl) and is done when at rest. Rejected (OUT_STATUS
+//! Rejected, OUT_DONE_SEQ = seq): an unknown kind; a moveL with a non-finite or non-positive
+//! speed or acceleration or a non-finite target; a Stop with a non-finite or non-positive
+//! acceleration. A moveL arriving during a move restarts from the current pose (like the
+//! program's `kill` + new `movel`). On start the program copies IN_CMD_SEQ into ACK and DONE.
+//! `rtde_set_watchdog` calls in the script are honoured on clock time while the program plays.
+//!
+//! # Faults ([`Faults`])
+//!
+//! - **Protective stop**: motion decelerates at [`controller::CONTROLLER_STOP_DECEL`] (3 m/s²
+//!   or rad/s², or the move's own acceleration if larger; a category-2-like controlled stop),
+//!   safety_mode PROTECTIVE_STOP (3), the program stops (runtime_state STOPPED) and its command
+//!   is never marked done. Dashboard `unlock protective stop` is refused with the real
+//!   controller's message until `protective_stop_unlock_delay` of clock time has passed; then
+//!   safety_mode NORMAL, robot_mode RUNNING, and the program must be uploaded again (or
+//!   restarted with dashboard `play`).
+//! - **Emergency stop** (robot emergency stop, the arm's e-stop button): same deceleration, then
+//!   safety_mode ROBOT_EMERGENCY_STOP (7), robot_mode POWER_OFF (3), program STOPPED. `power on`
+//!   and `brake release` are refused until [`Faults::release_emergency_stop`] (the button pulled
+//!   out), after which safety is NORMAL and the robot still needs power on + brake release.
+//! - **Connection drop**: every RTDE socket is closed; for `refuse_for` of clock time new
+//!   connections are accepted and closed at once (the listener stays bound, so the client sees
+//!   an immediate EOF rather than "connection refused"). Input registers claimed by the dropped
+//!   connections are released. Dashboard and script ports are unaffected.
+//! - **Delayed start acknowledgement**: the next `S` starts streaming at once; its reply is sent
+//!   only after the given clock time, so data packages arrive before it.
+//! - **Text messages during handshake**: an info-level `M` precedes every V, v, O and I reply.
+//!
+//! # Not modelled
+//!
+//! Joint space (joint values are zeros), forces (`actual_TCP_force` is zero; the contact
+//! simulator supplies forces elsewhere), the binary robot-state stream real controllers send on
+//! the secondary interface, and any URScript other than the rig's program.
+
+pub mod controller;
+pub mod dashboard;
+pub mod motion;
+pub mod rtde_server;
+pub mod script;
+pub mod variables;
+
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use rig_core::clock::{Clock, ClockHandle};
+use rig_core::control;
+use rig_core::pose::Pose;
+use tokio::net::TcpListener;
+use tokio::sync::{broadcast, watch};
+use tokio::task::JoinHandle;
+
+use controller::Controller;
+
+/// How the simulated controller is set up.
+#[derive(Debug, Clone)]
+pub struct Ur5eConfig {
+    /// RTDE listener (30004 on a real controller); port 0 picks a free one.
+    pub rtde_addr: SocketAddr,
+    /// Dashboard listener (29999 on a real controller).
+    pub dashboard_addr: SocketAddr,
+    /// Secondary interface listener for scripts (30002 on a real controller).
+    pub script_addr: SocketAddr,
+    /// TCP pose at start.
+    pub home_pose: Pose,
+    /// Reported by the `v` request: (major, minor, bugfix, build). Major ≥ 5 is an e-Series.
+    pub controller_version: (u32, u32, u32, u32),
+    /// robot_mode at start ([`control::robot_mode`]).
+    pub initial_robot_mode: i32,
+    /// Controller cycle rate and the highest output frequency accepted: 500 Hz e-Series,
+    /// 125 Hz CB3.
+    pub max_frequency_hz: f64,
+    /// Clock time after a protective stop before `unlock protective stop` is accepted.
+    pub protective_stop_unlock_delay: Duration,
+}
+
+impl Default for Ur5eConfig {
+    fn default() -> Self {
+        let local: SocketAddr = ([127, 0, 0, 1], 0).into();
+        Self {
+            rtde_addr: local,
+            dashboard_addr: local,
+            script_addr: local,
+            // A tool pointing down above the table, as the rig's plans start.
+            home_pose: Pose::new(0.3, -0.2, 0.3, 0.0, std::f64::consts::PI, 0.0),
+            controller_version: (5, 15, 0, 0),
+            initial_robot_mode: control::robot_mode::POWER_OFF,
+            max_frequency_hz: 500.0,
+            protective_stop_unlock_delay: Duration::from_secs(5),
+        }
+    }
+}
+
+/// The controller's state at one tick, as the RTDE stream reports it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ControllerSnapshot {
+    /// Clock time of the tick, ns.
+    pub t_ns: u64,
+    /// RTDE `timestamp`: seconds since the controller started, on the clock.
+    pub timestamp_s: f64,
+    pub actual_tcp_pose: Pose,
+    pub target_tcp_pose: Pose,
+    /// `[vx, vy, vz, wx, wy, wz]`, m/s and rad/s in the base frame.
+    pub actual_tcp_speed: [f64; 6],
+    pub robot_mode: i32,
+    pub safety_mode: i32,
+    pub runtime_state: u32,
+    /// Whether a script the mock can run has been uploaded.
+    pub program_loaded: bool,
+    pub input_int_registers: [i32; 48],
+    pub input_double_registers: [f64; 48],
+    /// Bit n is input bit register n (0..128).
+    pub input_bit_registers: u128,
+    pub output_int_registers: [i32; 48],
+    pub output_double_registers: [f64; 48],
+    pub output_bit_registers: u128,
+    /// Data packages sent on all RTDE connections since start.
+    pub data_packages_sent: u64,
+}
+
+impl Default for ControllerSnapshot {
+    fn default() -> Self {
+        Self {
+            t_ns: 0,
+            timestamp_s: 0.0,
+            actual_tcp_pose: Pose::default(),
+            target_tcp_pose: Pose::default(),
+            actual_tcp_speed: [0.0; 6],
+            robot_mode: control::robot_mode::POWER_OFF,
+            safety_mode: control::safety_mode::NORMAL,
+            runtime_state: control::runtime_state::STOPPED,
+            program_loaded: false,
+            input_int_registers: [0; 48],
+            input_double_registers: [0.0; 48],
+            input_bit_registers: 0,
+            output_int_registers: [0; 48],
+            output_double_registers: [0.0; 48],
+            output_bit_registers: 0,
+            data_packages_sent: 0,
+        }
+    }
+}
+
+#[derive(Debug, Default)]
+struct FaultState {
+    refuse_until_ns: u64,
+    delay_start_ack: Option<Duration>,
+    text_in_handshake: bool,
+}
+
+/// State shared by the controller task, the servers and the handles.
+struct Shared {
+    clock: Clock,
+    cfg: Ur5eConfig,
+    state: Mutex<Controller>,
+    samples: broadcast::Sender<Arc<ControllerSnapshot>>,
+    /// Clock time of the last tick the controller has processed.
+    ticks_done: watch::Sender<u64>,
+    shutdown: watch::Sender<bool>,
+    /// Bumped by [`Faults::drop_connections`]; every RTDE connection closes on a change.
+    drop_gen: watch::Sender<u64>,
+    faults: Mutex<FaultState>,
+    packages_sent: AtomicU64,
+    next_conn: AtomicU64,
+    t0_ns: u64,
+    tick_period_ns: u64,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, Controller> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+    fn faults(&self) -> MutexGuard<'_, FaultState> {
+        self.faults.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// A running simulated controller. Dropping it (or [`Ur5e::shutdown`]) stops every task.
+pub struct Ur5e {
+    shared: Arc<Shared>,
+    rtde_addr: SocketAddr,
+    dashboard_addr: SocketAddr,
+    script_addr: SocketAddr,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+/// Injects faults into a running controller; cheap to clone.
+#[derive(Clone)]
+pub struct Faults {
+    shared: Arc<Shared>,
+}
+
+/// Snapshots kept for slow connections: 2 s at 500 Hz.
+const SAMPLE_BUFFER: usize = 1024;
+
+impl Ur5e {
+    /// Bind the listeners and start the controller.
+    pub async fn start(cfg: Ur5eConfig, clock: Clock) -> std::io::Result<Ur5e> {
+        if !(cfg.max_frequency_hz.is_finite() && cfg.max_frequency_hz > 0.0) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "max_frequency_hz must be positive, got {}",
+                    cfg.max_frequency_hz
+                ),
+            ));
+        }
+        let rtde = TcpListener::bind(cfg.rtde_addr).await?;
+        let dashboard = TcpListener::bind(cfg.dashboard_addr).await?;
+        let script = TcpListener::bind(cfg.script_addr).await?;
+        let (rtde_addr, dashboard_addr, script_addr) = (
+            rtde.local_addr()?,
+            dashboard.local_addr()?,
+            script.local_addr()?,
+        );
+        let tick_period_ns = (1e9 / cfg.max_frequency_hz).round() as u64;
+        let t0 = clock.now_ns();
+        let controller = Controller::new(
+            cfg.home_pose,
+            cfg.initial_robot_mode,
+            u64::try_from(cfg.protective_stop_unlock_delay.as_nanos()).unwrap_or(u64::MAX),
+            t0,
+        );
+        let shared = Arc::new(Shared {
+            clock,
+            cfg,
+            state: Mutex::new(controller),
+            samples: broadcast::channel(SAMPLE_BUFFER).0,
+            ticks_done: watch::channel(t0).0,
+            shutdown: watch::channel(false).0,
+            drop_gen: watch::channel(0).0,
+            faults: Mutex::new(FaultState::default()),
+            packages_sent: AtomicU64::new(0),
+            next_conn: AtomicU64::new(1),
+            t0_ns: t0,
+            tick_period_ns,
+        });
+        let tasks = vec![
+            tokio::spawn(run_controller(shared.clone())),
+            tokio::spawn(rtde_server::serve(rtde, shared.clone())),
+            tokio::spawn(dashboard::serve(dashboard, shared.clone())),
+            tokio::spawn(script::serve(script, shared.clone())),
+        ];
+        tracing::info!(%rtde_addr, %dashboard_addr, %script_addr, "simulated UR5e started");
+        Ok(Ur5e {
+            shared,
+            rtde_addr,
+            dashboard_addr,
+            script_addr,
+            tasks,
+        })
+    }
+
+    pub fn rtde_addr(&self) -> SocketAddr {
+        self.rtde_addr
+    }
+    pub fn dashboard_addr(&self) -> SocketAddr {
+        self.dashboard_addr
+    }
+    pub fn script_addr(&self) -> SocketAddr {
+        self.script_addr
+    }
+
+    /// The controller's current state.
+    pub fn snapshot(&self) -> ControllerSnapshot {
+        let mut s = self.shared.lock().snapshot();
+        s.data_packages_sent = self.shared.packages_sent.load(Ordering::Relaxed);
+        s
+    }
+
+    /// The fault injector.
+    pub fn faults(&self) -> Faults {
+        Faults {
+            shared: self.shared.clone(),
+        }
+    }
+
+    /// Controller period in nanoseconds (2 ms at 500 Hz).
+    pub fn tick_period_ns(&self) -> u64 {
+        self.shared.tick_period_ns
+    }
+
+    /// For tests on a manual clock: advance `handle` to the next `n` controller ticks, one at a
+    /// time, waiting after each until the controller has processed it (its snapshot is then
+    /// broadcast to every RTDE connection).
+    pub async fn step_ticks(&self, handle: &ClockHandle, n: u64) {
+        let mut done = self.shared.ticks_done.subscribe();
+        let (t0, p) = (self.shared.t0_ns, self.shared.tick_period_ns);
+        for _ in 0..n {
+            let now = self.shared.clock.now_ns();
+            let target = t0 + (now.saturating_sub(t0) / p + 1) * p;
+            handle.advance_to_ns(target);
+            let _ = done.wait_for(|t| *t >= target).await;
+        }
+    }
+
+    /// Stop every task and close every socket.
+    pub async fn shutdown(mut self) {
+        self.shared.shutdown.send_replace(true);
+        for t in self.tasks.drain(..) {
+            t.abort();
+            let _ = t.await;
+        }
+        tracing::info!("simulated UR5e shut down");
+    }
+}
+
+impl Drop for Ur5e {
+    fn drop(&mut self) {
+        self.shared.shutdown.send_replace(true);
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+}
+
+/// The controller task. A real controller produces every 2 ms sample; so does this one. When
+/// the task wakes late (tokio timers have about 1 ms resolution, and a scaled clock makes a tick
+/// shorter than that) it processes the missed ticks at once, each with its own time stamp, so
+/// the RTDE stream keeps its full rate in clock time. Only when it falls more than
+/// [`MAX_CATCH_UP_NS`] behind (the process was suspended) does it skip ahead, with a warning.
+async fn run_controller(shared: Arc<Shared>) {
+    let period = shared.tick_period_ns;
+    let mut next_ns = shared.t0_ns + period;
+    loop {
+        shared.clock.sleep_until_ns(next_ns).await;
+        let now = shared.clock.now_ns();
+        if now.saturating_sub(next_ns) > MAX_CATCH_UP_NS {
+            let skipped = (now - next_ns) / period;
+            tracing::warn!("simulated controller fell {skipped} ticks behind; skipping them");
+            next_ns += skipped * period;
+        }
+        let t_ns = next_ns;
+        next_ns += period;
+        let snap = Arc::new(shared.lock().tick(t_ns));
+        // No receivers is fine: nobody streams yet.
+        let _ = shared.samples.send(snap);
+        shared.ticks_done.send_replace(t_ns);
+    }
+}
+
+/// How far behind the controller task may fall before it skips ticks instead of catching up.
+const MAX_CATCH_UP_NS: u64 = 1_000_000_000;
+
+impl Faults {
+    fn now(&self) -> u64 {
+        self.shared.clock.now_ns()
+    }
+
+    /// A protective stop now (see the module docs).
+    pub fn protective_stop(&self) {
+        let now = self.now();
+        self.shared.lock().protective_stop(now);
+    }
+
+    /// A robot emergency stop now: safety_mode 7, robot_mode POWER_OFF (see the module docs).
+    pub fn emergency_stop(&self) {
+        let now = self.now();
+        self.shared.lock().emergency_stop(now);
+    }
+
+    /// Release the emergency-stop button: safety NORMAL, the robot stays powered off.
+    pub fn release_emergency_stop(&self) {
+        self.shared.lock().release_emergency_stop();
+    }
+
+    /// Close every RTDE connection, and close new ones at once for `refuse_for` of clock time
+    /// (a controller restarting its RTDE server).
+    pub fn drop_connections(&self, refuse_for: Duration) {
+        let until = self
+            .now()
+            .saturating_add(u64::try_from(refuse_for.as_nanos()).unwrap_or(u64::MAX));
+        self.shared.faults().refuse_until_ns = until;
+        self.shared.drop_gen.send_modify(|g| *g += 1);
+        tracing::warn!(?refuse_for, "RTDE connections dropped (injected fault)");
+    }
+
+    /// The next `S` starts streaming at once but is answered only after `d` of clock time.
+    pub fn delay_start_ack(&self, d: Duration) {
+        self.shared.faults().delay_start_ack = Some(d);
+    }
+
+    /// While on, a text message precedes every V, v, O and I reply.
+    pub fn text_messages_during_handshake(&self, on: bool) {
+        self.shared.faults().text_in_handshake = on;
+    }
+}
