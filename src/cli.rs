@@ -44,6 +44,12 @@ pub enum Command {
     Indenters(IndentersArgs),
     /// Drive the robot along the contact plan (the simulated rig when no lab rig is configured).
     Run(RunArgs),
+    /// Force/torque sensor: calibration, tare, live stream and checks.
+    Ft(crate::force::cli::FtArgs),
+    /// The contact + optics simulator: render a frame and print its wrench.
+    Sim(crate::simcli::SimArgs),
+    /// Benchmarks: what accuracy costs in time.
+    Bench(crate::bench::BenchArgs),
 }
 
 /// Arguments of `rig run`.
@@ -87,6 +93,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Plan(args) => plan_command(&args),
         Command::Indenters(args) => indenters_command(&args),
         Command::Run(args) => run_command(&args),
+        Command::Ft(args) => crate::force::cli::run(&args),
+        Command::Sim(args) => crate::simcli::run(&args),
+        Command::Bench(args) => crate::bench::run(&args),
     }
 }
 

@@ -9,7 +9,11 @@
 //! Pure, shared parts (clock, pose maths, RTDE codec, config, indenters) live in `rig-core`;
 //! the simulated hardware lives in `hardware-mocks`.
 
+pub mod bench;
+pub mod camera;
 pub mod cli;
+pub mod force;
 pub mod plan;
 pub mod robot;
 pub mod run;
+pub mod simcli;

@@ -5,10 +5,14 @@
 //!   that accepts the rig's URScript control program, a trapezoidal moveL model and injectable
 //!   faults (protective stop, emergency stop, RTDE connection drop, delayed start
 //!   acknowledgement, text messages mid-handshake).
+//! - [`sim`]: the contact + optics simulator that turns one scene into forces and images.
+//! - [`truth`]: the ground truth (true wrench) the simulated devices sample.
 //!
 //! Every mock takes its time from one [`rig_core::clock::Clock`], so the whole simulated rig can
 //! run faster than real time (`Clock::scaled`) or be stepped by a test (`Clock::manual`). The
 //! mocks run in-process (tests, `rig run` without hardware) or as separate processes through the
 //! `rig-mock` binary.
 
+pub mod sim;
+pub mod truth;
 pub mod ur5e;

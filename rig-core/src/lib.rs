@@ -11,3 +11,5 @@ pub mod control;
 pub mod indenter;
 pub mod pose;
 pub mod rtde;
+pub mod wrench;
+pub mod optics;

@@ -1,0 +1,28 @@
+//! `rig bench …`: what accuracy costs in time. Each benchmark prints a table and writes a plot.
+
+pub mod render;
+pub mod sim;
+
+use clap::{Args, Subcommand};
+
+/// Arguments of `rig bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    pub what: BenchCommand,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Contact simulator: force error against time per frame, per model and grid resolution.
+    Sim(sim::SimBenchArgs),
+    /// Optics: rendering frames per second at 320×240 and 640×480, each effect on and off.
+    Render(render::RenderBenchArgs),
+}
+
+pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+    match &args.what {
+        BenchCommand::Sim(a) => sim::run(a),
+        BenchCommand::Render(a) => render::run(a),
+    }
+}

@@ -1,0 +1,3 @@
+//! Nano17 force/torque sensing (being written).
+
+pub mod cli;
