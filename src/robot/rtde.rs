@@ -32,7 +32,7 @@
 use std::collections::VecDeque;
 use std::fmt;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex as StdMutex};
 use std::time::Duration;
 
@@ -46,7 +46,7 @@ use rig_core::rtde::{
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
-use tokio::sync::{Mutex, broadcast, watch};
+use tokio::sync::{Mutex, broadcast, mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
 use super::state::{RobotState, StateDecoder};
@@ -142,6 +142,13 @@ pub enum RtdeError {
     GaveUp { attempts: u32, last: Box<RtdeError> },
     #[error("the RTDE client was shut down")]
     Shutdown,
+    #[error("cannot {action} RTDE streaming while the link is {phase}")]
+    WrongPhase {
+        action: &'static str,
+        phase: &'static str,
+    },
+    #[error("the controller refused to pause RTDE streaming{messages}")]
+    PauseRefused { messages: String },
 }
 
 impl RtdeError {
@@ -207,6 +214,10 @@ pub enum Phase {
     InputSetup(usize),
     Start,
     Streaming,
+    /// Pause sent, reply awaited (data may still arrive).
+    Pausing,
+    /// Paused by request: no data is expected until a resume.
+    Paused,
     Failed,
 }
 
@@ -221,6 +232,8 @@ impl Phase {
             Self::InputSetup(_) => "input setup",
             Self::Start => "start",
             Self::Streaming => "streaming",
+            Self::Pausing => "pausing",
+            Self::Paused => "paused",
             Self::Failed => "failed",
         }
     }
@@ -310,6 +323,28 @@ impl Session {
 
     pub fn phase(&self) -> Phase {
         self.phase
+    }
+
+    /// Ask the controller to stop sending data ('P'). Only while streaming; returns whether a
+    /// pause was queued.
+    pub fn pause(&mut self) -> bool {
+        if self.phase != Phase::Streaming {
+            return false;
+        }
+        self.phase = Phase::Pausing;
+        self.transmit.push_back(ClientPackage::Pause);
+        true
+    }
+
+    /// Start streaming again after a pause ('S', the same recipes). Returns whether a start
+    /// was queued.
+    pub fn resume(&mut self) -> bool {
+        if self.phase != Phase::Paused {
+            return false;
+        }
+        self.phase = Phase::Start;
+        self.transmit.push_back(ClientPackage::Start);
+        true
     }
     pub fn phase_name(&self) -> &'static str {
         self.phase.name()
@@ -470,14 +505,22 @@ impl Session {
                 Phase::Streaming => {}
                 _ => self.skip(SkipReason::UnexpectedReply('S')),
             },
-            ServerPackage::PauseReply { .. } => {}
+            ServerPackage::PauseReply { accepted } => match self.phase {
+                Phase::Pausing if accepted => self.phase = Phase::Paused,
+                // Refused: the controller keeps streaming, and so do we.
+                Phase::Pausing => self.phase = Phase::Streaming,
+                _ => self.skip(SkipReason::UnexpectedReply('P')),
+            },
             ServerPackage::Data { recipe_id, payload } => {
                 let ours = match (recipe_id, self.output_id) {
                     (Some(got), Some(want)) => got == want,
                     _ => true,
                 };
                 match self.phase {
-                    Phase::Streaming if ours => self.events.push_back(SessionEvent::Data(payload)),
+                    // Data sent before the controller saw our Pause is still valid data.
+                    Phase::Streaming | Phase::Pausing if ours => {
+                        self.events.push_back(SessionEvent::Data(payload))
+                    }
                     // Data before the Start reply: the controller has started; so have we.
                     Phase::Start if ours => {
                         self.early_data += 1;
@@ -763,6 +806,26 @@ struct Shared {
     counters: Counters,
     texts: StdMutex<VecDeque<TextMessage>>,
     clock: Clock,
+    /// The user paused streaming: a re-made link is paused again right after its handshake.
+    paused_wanted: AtomicBool,
+}
+
+/// Requests from the client handle to the reader task, which owns the session.
+enum Control {
+    Pause(oneshot::Sender<Result<(), RtdeError>>),
+    Resume(oneshot::Sender<Result<(), RtdeError>>),
+}
+
+/// Send whatever the session queued (pause/start) on the current link.
+async fn flush_transmit(session: &mut Session, shared: &Shared) -> Result<(), RtdeError> {
+    let mut guard = shared.writer.lock().await;
+    let Some(w) = guard.as_mut() else {
+        return Err(RtdeError::NotConnected);
+    };
+    while let Some(pkg) = session.poll_transmit() {
+        w.writer.write_package(&pkg, session.version()).await?;
+    }
+    Ok(())
 }
 
 impl Shared {
@@ -985,14 +1048,57 @@ async fn establish_with_retries(
     unreachable!("the loop returns on its last attempt")
 }
 
-/// Stream until the link fails; returns why.
-async fn stream(est: &mut Established, cfg: &RtdeConfig, shared: &Shared) -> RtdeError {
+/// Stream until the link fails; returns why. Pause/resume requests are served here because
+/// this task owns the session; while paused, silence is expected and is not a stall.
+async fn stream(
+    est: &mut Established,
+    cfg: &RtdeConfig,
+    shared: &Shared,
+    control: &mut mpsc::UnboundedReceiver<Control>,
+) -> RtdeError {
+    // The request being served and the phase that completes it.
+    let mut pending: Option<(Phase, oneshot::Sender<Result<(), RtdeError>>)> = None;
     loop {
-        let frame = match shared
-            .clock
-            .timeout(cfg.stall_timeout, est.reader.read_frame())
-            .await
-        {
+        let paused = est.session.phase() == Phase::Paused;
+        let reader = &mut est.reader;
+        let read = async {
+            if paused {
+                Ok(reader.read_frame().await)
+            } else {
+                shared
+                    .clock
+                    .timeout(cfg.stall_timeout, reader.read_frame())
+                    .await
+            }
+        };
+        let frame = tokio::select! {
+            Some(ctl) = control.recv() => {
+                let (want, action, queued, reply) = match ctl {
+                    Control::Pause(tx) => {
+                        shared.paused_wanted.store(true, Ordering::Relaxed);
+                        (Phase::Paused, "pause", est.session.pause(), tx)
+                    }
+                    Control::Resume(tx) => {
+                        shared.paused_wanted.store(false, Ordering::Relaxed);
+                        (Phase::Streaming, "resume", est.session.resume(), tx)
+                    }
+                };
+                if est.session.phase() == want {
+                    let _ = reply.send(Ok(()));
+                } else if !queued {
+                    let phase = est.session.phase_name();
+                    let _ = reply.send(Err(RtdeError::WrongPhase { action, phase }));
+                } else if let Err(e) = flush_transmit(&mut est.session, shared).await {
+                    let _ = reply.send(Err(RtdeError::NotConnected));
+                    return e;
+                } else {
+                    pending = Some((want, reply));
+                }
+                continue;
+            }
+            r = read => r,
+        };
+        let frame = match frame {
             Err(_) => return RtdeError::Stalled(cfg.stall_timeout),
             Ok(Ok(Some(f))) => f,
             Ok(Ok(None)) => {
@@ -1006,14 +1112,38 @@ async fn stream(est: &mut Established, cfg: &RtdeConfig, shared: &Shared) -> Rtd
         let r = est.session.handle_frame(&frame);
         shared.drain(&mut est.session, &mut est.decoder);
         if let Err(e) = r {
+            if let Some((_, tx)) = pending.take() {
+                let _ = tx.send(Err(RtdeError::NotConnected));
+            }
             return e;
         }
+        let phase = est.session.phase();
+        pending = match pending.take() {
+            Some((want, tx)) if phase == want => {
+                let _ = tx.send(Ok(()));
+                None
+            }
+            // A refused pause puts the session back to streaming.
+            Some((Phase::Paused, tx)) if phase == Phase::Streaming => {
+                shared.paused_wanted.store(false, Ordering::Relaxed);
+                let _ = tx.send(Err(RtdeError::PauseRefused {
+                    messages: shared.messages_suffix(),
+                }));
+                None
+            }
+            other => other,
+        };
     }
 }
 
-async fn reader_task(mut est: Established, cfg: RtdeConfig, shared: Arc<Shared>) {
+async fn reader_task(
+    mut est: Established,
+    cfg: RtdeConfig,
+    shared: Arc<Shared>,
+    mut control: mpsc::UnboundedReceiver<Control>,
+) {
     loop {
-        let err = stream(&mut est, &cfg, &shared).await;
+        let err = stream(&mut est, &cfg, &shared, &mut control).await;
         shared
             .counters
             .link_failures
@@ -1021,7 +1151,16 @@ async fn reader_task(mut est: Established, cfg: RtdeConfig, shared: Arc<Shared>)
         tracing::warn!("RTDE link lost: {err}; reconnecting");
         *shared.writer.lock().await = None;
         match establish_with_retries(&cfg, &shared, Some(err.to_string())).await {
-            Ok(e) => est = e,
+            Ok(e) => {
+                est = e;
+                // The handshake always ends streaming; honour a pause the user asked for.
+                if shared.paused_wanted.load(Ordering::Relaxed)
+                    && est.session.pause()
+                    && let Err(e) = flush_transmit(&mut est.session, &shared).await
+                {
+                    tracing::warn!("RTDE: could not pause the re-made link: {e}");
+                }
+            }
             Err(e) => {
                 tracing::error!("RTDE: {e}");
                 shared
@@ -1037,6 +1176,8 @@ async fn reader_task(mut est: Established, cfg: RtdeConfig, shared: Arc<Shared>)
 pub struct RtdeClient {
     shared: Arc<Shared>,
     task: JoinHandle<()>,
+    control: mpsc::UnboundedSender<Control>,
+    handshake_timeout: Duration,
 }
 
 impl Drop for RtdeClient {
@@ -1062,10 +1203,49 @@ impl RtdeClient {
             counters: Counters::default(),
             texts: StdMutex::new(VecDeque::new()),
             clock,
+            paused_wanted: AtomicBool::new(false),
         });
         let est = establish_with_retries(&cfg, &shared, None).await?;
-        let task = tokio::spawn(reader_task(est, cfg, shared.clone()));
-        Ok(Self { shared, task })
+        let (control, control_rx) = mpsc::unbounded_channel();
+        let handshake_timeout = cfg.handshake_timeout;
+        let task = tokio::spawn(reader_task(est, cfg, shared.clone(), control_rx));
+        Ok(Self {
+            shared,
+            task,
+            control,
+            handshake_timeout,
+        })
+    }
+
+    /// Pause streaming ('P') and wait for the controller's reply. While paused no data is
+    /// expected (no stall detection), and a link re-made meanwhile is paused again.
+    pub async fn pause(&self) -> Result<(), RtdeError> {
+        self.request(Control::Pause).await
+    }
+
+    /// Resume streaming after [`pause`](Self::pause) ('S' with the same recipes) and wait for
+    /// the controller's reply.
+    pub async fn resume(&self) -> Result<(), RtdeError> {
+        self.request(Control::Resume).await
+    }
+
+    async fn request(
+        &self,
+        make: fn(oneshot::Sender<Result<(), RtdeError>>) -> Control,
+    ) -> Result<(), RtdeError> {
+        let (tx, rx) = oneshot::channel();
+        self.control
+            .send(make(tx))
+            .map_err(|_| RtdeError::Shutdown)?;
+        match self.shared.clock.timeout(self.handshake_timeout, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(RtdeError::NotConnected),
+            Err(_) => Err(RtdeError::HandshakeTimeout {
+                phase: "pause/start",
+                timeout: self.handshake_timeout,
+                messages: self.shared.messages_suffix(),
+            }),
+        }
     }
 
     /// The latest state (`None` before the first data package).
@@ -1441,5 +1621,53 @@ mod tests {
             s.handle_frame(&frame_of(&ServerPackage::StartReply { accepted: false }, 2)),
             Err(RtdeError::StartRefused { .. })
         ));
+    }
+
+    #[test]
+    fn pause_and_resume_follow_the_replies() {
+        let (mut s, _) = handshake(true, 5);
+        while s.poll_event().is_some() {}
+        assert!(!s.resume(), "resume while streaming is refused");
+        assert!(s.pause());
+        assert_eq!(s.poll_transmit(), Some(ClientPackage::Pause));
+        assert_eq!(s.phase(), Phase::Pausing);
+        // Data the controller sent before it saw the pause is still delivered.
+        s.handle_frame(&frame_of(&data(PROTOCOL_V2), PROTOCOL_V2))
+            .unwrap();
+        assert!(matches!(s.poll_event(), Some(SessionEvent::Data(_))));
+        s.handle_frame(&frame_of(
+            &ServerPackage::PauseReply { accepted: true },
+            PROTOCOL_V2,
+        ))
+        .unwrap();
+        assert_eq!(s.phase(), Phase::Paused);
+        // Data while paused is not ours to use.
+        s.handle_frame(&frame_of(&data(PROTOCOL_V2), PROTOCOL_V2))
+            .unwrap();
+        assert_eq!(
+            s.poll_event(),
+            Some(SessionEvent::Skipped(SkipReason::UnexpectedData))
+        );
+        assert!(s.resume());
+        assert_eq!(s.poll_transmit(), Some(ClientPackage::Start));
+        s.handle_frame(&frame_of(
+            &ServerPackage::StartReply { accepted: true },
+            PROTOCOL_V2,
+        ))
+        .unwrap();
+        assert!(s.is_streaming());
+        assert_eq!(s.poll_event(), Some(SessionEvent::Ready));
+    }
+
+    #[test]
+    fn a_refused_pause_keeps_streaming() {
+        let (mut s, _) = handshake(true, 5);
+        assert!(s.pause());
+        s.handle_frame(&frame_of(
+            &ServerPackage::PauseReply { accepted: false },
+            PROTOCOL_V2,
+        ))
+        .unwrap();
+        assert!(s.is_streaming());
     }
 }
