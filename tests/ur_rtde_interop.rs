@@ -101,8 +101,14 @@ fn start_mock() -> Mock {
     mock
 }
 
+/// The Python with the interop packages: `RIG_PYTHON` (scripts/test points it at the project's
+/// .venv), else `python3` on the PATH.
+fn python() -> String {
+    std::env::var("RIG_PYTHON").unwrap_or_else(|_| "python3".to_owned())
+}
+
 fn require_ur_rtde() {
-    let ok = Command::new("python3")
+    let ok = Command::new(python())
         .args(["-c", "import rtde_receive, rtde_io"])
         .stderr(Stdio::null())
         .status()
@@ -110,7 +116,9 @@ fn require_ur_rtde() {
         .unwrap_or(false);
     assert!(
         ok,
-        "python3 cannot import ur_rtde: pip install ur-rtde==1.6.5 (the CI script does this)"
+        "{} cannot import ur_rtde: run the tests with `bash scripts/test` (it installs \
+         tests/python/requirements.txt into .venv), or pip install ur-rtde==1.6.5",
+        python()
     );
 }
 
@@ -180,13 +188,13 @@ fn ur_rtde_streams_500_hz_reads_state_and_writes_a_register() {
     let _mock = start_mock();
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/python/ur_rtde_check.py");
     let (register, value) = (18, 424242);
-    let out = Command::new("python3")
+    let out = Command::new(python())
         .arg(script)
         .args(["--seconds", "5", "--register", &register.to_string()])
         .args(["--value", &value.to_string()])
         .stderr(Stdio::inherit())
         .output()
-        .expect("run python3");
+        .expect("run the interop Python");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "ur_rtde_check.py failed: {stdout}");
     let r: serde_json::Value = serde_json::from_str(stdout.trim())
