@@ -50,6 +50,8 @@ pub enum Command {
     Sim(crate::simcli::SimArgs),
     /// Benchmarks: what accuracy costs in time.
     Bench(crate::bench::BenchArgs),
+    /// Recorded datasets: verify completeness and synchronisation.
+    Dataset(crate::dataset::DatasetArgs),
 }
 
 /// Arguments of `rig run`.
@@ -96,6 +98,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Ft(args) => crate::force::cli::run(&args),
         Command::Sim(args) => crate::simcli::run(&args),
         Command::Bench(args) => crate::bench::run(&args),
+        Command::Dataset(args) => crate::dataset::run(&args),
     }
 }
 

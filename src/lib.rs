@@ -12,6 +12,7 @@
 pub mod bench;
 pub mod camera;
 pub mod cli;
+pub mod dataset;
 pub mod force;
 pub mod plan;
 pub mod robot;

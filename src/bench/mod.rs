@@ -2,6 +2,7 @@
 
 pub mod render;
 pub mod sim;
+pub mod sync;
 
 use clap::{Args, Subcommand};
 
@@ -18,11 +19,14 @@ pub enum BenchCommand {
     Sim(sim::SimBenchArgs),
     /// Optics: rendering frames per second at 320×240 and 640×480, each effect on and off.
     Render(render::RenderBenchArgs),
+    /// Synchronisation: interpolation and drift estimation against the true signal.
+    Sync(sync::SyncBenchArgs),
 }
 
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     match &args.what {
         BenchCommand::Sim(a) => sim::run(a),
         BenchCommand::Render(a) => render::run(a),
+        BenchCommand::Sync(a) => sync::run(a),
     }
 }
