@@ -60,12 +60,16 @@ def main() -> int:
 
     steps = [b - a for a, b in zip(stamps, stamps[1:])]
     good_steps = sum(1 for s in steps if abs(s - 0.002) < 1e-6)
+    # A poller can miss packages when several arrive at once (the latest-state slot is
+    # overwritten), so also count steps that are whole multiples of the 2 ms period.
+    on_grid = sum(1 for s in steps if s > 0 and abs(s / 0.002 - round(s / 0.002)) < 1e-3)
     print(
         json.dumps(
             {
                 "distinct_timestamps": len(stamps),
                 "steps": len(steps),
                 "steps_of_2ms": good_steps,
+                "steps_on_2ms_grid": on_grid,
                 "first_timestamp": stamps[0] if stamps else None,
                 "last_timestamp": stamps[-1] if stamps else None,
                 "max_step": max(steps) if steps else None,
