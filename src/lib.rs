@@ -15,6 +15,8 @@ pub mod cli;
 pub mod dataset;
 pub mod force;
 pub mod plan;
+pub mod record;
 pub mod robot;
 pub mod run;
 pub mod simcli;
+pub mod sync;

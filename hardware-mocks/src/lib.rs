@@ -6,6 +6,8 @@
 //!   faults (protective stop, emergency stop, RTDE connection drop, delayed start
 //!   acknowledgement, text messages mid-handshake).
 //! - [`sim`]: the contact + optics simulator that turns one scene into forces and images.
+//! - [`camera`]: the simulated GelSight camera, rendering the scene at its (imperfect) frame
+//!   rate on the shared clock.
 //! - [`truth`]: the ground truth (true wrench) the simulated devices sample.
 //!
 //! Every mock takes its time from one [`rig_core::clock::Clock`], so the whole simulated rig can
@@ -13,6 +15,8 @@
 //! mocks run in-process (tests, `rig run` without hardware) or as separate processes through the
 //! `rig-mock` binary.
 
+pub mod camera;
+pub mod nano17;
 pub mod sim;
 pub mod truth;
 pub mod ur5e;

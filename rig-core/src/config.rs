@@ -70,6 +70,10 @@ pub struct RigConfig {
     /// The tactile sensor's camera; absent: none configured.
     #[serde(default)]
     pub camera: Option<CameraConfig>,
+    /// The tactile sensor's optics (LEDs, background, markers), used by the simulator; absent:
+    /// the simulator's defaults ([`crate::optics::OpticsConfig::default`]).
+    #[serde(default)]
+    pub optics: Option<crate::optics::OpticsConfig>,
 }
 
 /// UR controller generation: decides the maximum RTDE frequency.
@@ -374,10 +378,60 @@ pub struct ForceSensorConfig {
     /// Requested sample rate, Hz.
     #[serde(default = "default_ft_rate_hz")]
     pub rate_hz: f64,
+    /// Tool transform: the indenter tip's origin in the sensor frame, mm (see
+    /// `rig_core::ft::transform`). Default: no displacement.
+    #[serde(default)]
+    pub tool_offset_mm: [f64; 3],
+    /// Tool transform rotation, fixed-axis angles about x, y, z of the sensor frame, degrees.
+    #[serde(default)]
+    pub tool_rotation_deg: [f64; 3],
+    /// Serial controller record format, `"binary"` (default) or `"ascii"`.
+    #[serde(default)]
+    pub output: crate::ft::serial::OutputMode,
+    /// Counts per newton of the controller or Net F/T (its configuration page). Default: 1e6
+    /// for `netft` (ATI's factory default), 320 for `serial`.
+    #[serde(default)]
+    pub counts_per_force: Option<f64>,
+    /// Counts per N·mm. Default: 1000 for `netft` (1e6 per N·m), 64 for `serial`.
+    #[serde(default)]
+    pub counts_per_torque: Option<f64>,
+    /// Max loads `[Fx, Fy, Fz, Tx, Ty, Tz]` (N, N·mm) when no calibration file gives them.
+    /// Default: Nano17 SI-25-0.25 (25, 25, 35 N; 250 N·mm).
+    #[serde(default)]
+    pub max_loads: Option<[f64; 6]>,
+    /// What to do with a saturated sample: `"flag"` (default: keep, flagged), `"drop"` or
+    /// `"stop"` (end the stream with an error).
+    #[serde(default)]
+    pub saturation: SaturationPolicy,
+    /// Samples averaged by a tare.
+    #[serde(default = "default_tare_samples")]
+    pub tare_samples: u32,
+    /// DAQ only: apply the calibration file's temperature compensation when it has one.
+    #[serde(default = "default_true")]
+    pub temperature_compensation: bool,
+}
+
+/// What the F/T front end does with a saturated sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum SaturationPolicy {
+    /// Keep the sample, flagged.
+    #[default]
+    Flag,
+    /// Drop the sample (counted).
+    Drop,
+    /// End the stream with an error.
+    Stop,
 }
 
 fn default_ft_rate_hz() -> f64 {
     1000.0
+}
+fn default_tare_samples() -> u32 {
+    500
+}
+fn default_true() -> bool {
+    true
 }
 
 /// Camera kind.
@@ -578,6 +632,7 @@ impl RigConfig {
         self.validate_safety(&mut v);
         self.validate_plan(&mut v);
         self.validate_devices(&mut v);
+        self.validate_optics(&mut v);
         if v.problems.is_empty() {
             Ok(())
         } else {
@@ -846,6 +901,30 @@ impl RigConfig {
         }
     }
 
+    fn validate_optics(&self, v: &mut Validator) {
+        let Some(optics) = &self.optics else { return };
+        v.problems.extend(optics.problems());
+        // The simulated camera renders at the optics resolution: the two must agree.
+        if let Some(cam) = &self.camera
+            && cam.kind == CameraKind::Sim
+        {
+            for (key, o, c) in [
+                ("width_px", optics.width_px, cam.width_px),
+                ("height_px", optics.height_px, cam.height_px),
+            ] {
+                if o != c {
+                    v.push(
+                        format!("optics.{key}"),
+                        format!(
+                            "{o} differs from camera.{key} = {c}; the simulated camera renders \
+                             at the optics resolution, so set both to the same value"
+                        ),
+                    );
+                }
+            }
+        }
+    }
+
     fn validate_devices(&self, v: &mut Validator) {
         if let Some(ft) = &self.force_sensor {
             let missing = |field: &str| -> bool {
@@ -870,6 +949,26 @@ impl RigConfig {
                 v.push("force_sensor.baud", "must be positive");
             }
             v.positive("force_sensor.rate_hz", ft.rate_hz);
+            for (key, val) in [
+                ("force_sensor.counts_per_force", ft.counts_per_force),
+                ("force_sensor.counts_per_torque", ft.counts_per_torque),
+            ] {
+                if let Some(x) = val {
+                    v.positive(key, x);
+                }
+            }
+            if let Some(m) = ft.max_loads {
+                for (i, x) in m.iter().enumerate() {
+                    v.positive(&format!("force_sensor.max_loads[{i}]"), *x);
+                }
+            }
+            if ft.tare_samples < 2 {
+                v.push("force_sensor.tare_samples", "must be at least 2");
+            }
+            let r = ft.tool_rotation_deg.map(f64::to_radians);
+            if let Err(e) = crate::ft::transform::ToolTransform::from_angles(ft.tool_offset_mm, r) {
+                v.push("force_sensor.tool_offset_mm", e.to_string());
+            }
         }
         if let Some(cam) = &self.camera {
             if cam.kind == CameraKind::V4l2

@@ -8,8 +8,9 @@
 pub mod clock;
 pub mod config;
 pub mod control;
+pub mod ft;
 pub mod indenter;
+pub mod optics;
 pub mod pose;
 pub mod rtde;
 pub mod wrench;
-pub mod optics;

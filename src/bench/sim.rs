@@ -1,10 +1,254 @@
-//! `rig bench sim` (being written).
+//! `rig bench sim`: what accuracy costs in time for the contact simulator.
+//!
+//! For each contact model and grid cell, a sphere (R = 4 mm) pressed 0.5 mm into the default gel
+//! is simulated repeatedly (force only, caches warm, as the simulated rig runs it), and its force
+//! is compared with the model's analytic reference:
+//!
+//! - `hertz`: the formula itself (no grid; its error against the exact sphere is 1.25%);
+//! - `winkler`: the spring layer under the exact sphere, `k π d² (R − d/3)`;
+//! - `half-space` and `layer-thick` (the layer model with h = 500 mm): Hertz;
+//! - `layer` (the real 3 mm gel, no closed form): the finest grid of the run.
+//!
+//! Prints a table and writes `sim.svg` (force error against time per frame, log-log) and
+//! `sim.csv` into `--out` (default `target/bench/`).
 
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
 use clap::Args;
+use hardware_mocks::sim::contact::analytic;
+use hardware_mocks::sim::{ContactModel, IndenterPose, Scene, Simulator};
+use rig_core::config::ElastomerConfig;
+use rig_core::indenter::Indenter;
 
 #[derive(Debug, Args)]
-pub struct SimBenchArgs {}
+pub struct SimBenchArgs {
+    /// Run a small subset (two coarse grids): seconds instead of a minute.
+    #[arg(long)]
+    pub quick: bool,
+    /// Directory for sim.svg and sim.csv.
+    #[arg(long, default_value = "target/bench")]
+    pub out: PathBuf,
+}
 
-pub fn run(_args: &SimBenchArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`rig bench sim` is not implemented yet")
+/// One measured configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimBenchRow {
+    /// Model label (`hertz`, `winkler`, `half-space`, `layer-thick`, `layer`).
+    pub model: String,
+    /// Grid cell, mm (`None` for the gridless Hertz).
+    pub cell_mm: Option<f64>,
+    /// Mean wall time per frame with warm caches, ms.
+    pub ms_per_frame: f64,
+    /// First frame (kernel build + FFT planning), ms.
+    pub first_frame_ms: f64,
+    /// |F| from the model, N.
+    pub force_n: f64,
+    /// Reference force, N.
+    pub reference_n: f64,
+    /// |F − F_ref| / F_ref.
+    pub rel_error: f64,
+}
+
+const RADIUS_MM: f64 = 4.0;
+const DEPTH_MM: f64 = 0.5;
+
+/// Measures every model at every cell (`quick`: cells 0.4 and 0.2 mm only).
+pub fn measure(quick: bool) -> anyhow::Result<Vec<SimBenchRow>> {
+    let cells: &[f64] = if quick {
+        &[0.4, 0.2]
+    } else {
+        &[0.4, 0.2, 0.1, 0.05]
+    };
+    let sphere = Arc::new(Indenter::builtin("sphere")?);
+    let gel = ElastomerConfig::default();
+    let e_star = gel.youngs_modulus_mpa / (1.0 - gel.poisson_ratio.powi(2));
+    let hertz = analytic::hertz_sphere_n(e_star, RADIUS_MM, DEPTH_MM);
+    let m = gel.youngs_modulus_mpa * (1.0 - gel.poisson_ratio)
+        / ((1.0 + gel.poisson_ratio) * (1.0 - 2.0 * gel.poisson_ratio));
+    let winkler = analytic::winkler_sphere_n(m / gel.thickness_mm, RADIUS_MM, DEPTH_MM);
+    let thick = ElastomerConfig {
+        thickness_mm: 500.0,
+        ..gel.clone()
+    };
+
+    let mut rows = Vec::new();
+    let mut push = |label: &str,
+                    gel: &ElastomerConfig,
+                    model: ContactModel,
+                    cell: Option<f64>,
+                    reference: f64|
+     -> anyhow::Result<()> {
+        let mut scene = Scene::new(
+            gel.clone(),
+            sphere.clone(),
+            IndenterPose {
+                depth_mm: DEPTH_MM,
+                ..IndenterPose::default()
+            },
+        );
+        scene.effects.contact = model;
+        scene.effects.cell_mm = cell;
+        let (force, first_ms, ms) = time_frames(&scene)?;
+        rows.push(SimBenchRow {
+            model: label.to_owned(),
+            cell_mm: cell,
+            ms_per_frame: ms,
+            first_frame_ms: first_ms,
+            force_n: force,
+            reference_n: reference,
+            rel_error: (force - reference).abs() / reference,
+        });
+        Ok(())
+    };
+    push("hertz", &gel, ContactModel::Hertz, None, hertz)?;
+    for &c in cells {
+        push("winkler", &gel, ContactModel::Winkler, Some(c), winkler)?;
+    }
+    for &c in cells {
+        push("half-space", &gel, ContactModel::HalfSpace, Some(c), hertz)?;
+    }
+    for &c in cells {
+        push("layer-thick", &thick, ContactModel::Layer, Some(c), hertz)?;
+    }
+    for &c in cells {
+        push("layer", &gel, ContactModel::Layer, Some(c), f64::NAN)?;
+    }
+    // The 3 mm layer has no closed form: compare with its finest grid.
+    let finest = rows
+        .iter()
+        .filter(|r| r.model == "layer")
+        .min_by(|a, b| a.cell_mm.partial_cmp(&b.cell_mm).expect("finite cells"))
+        .map(|r| r.force_n)
+        .unwrap_or(f64::NAN);
+    for r in rows.iter_mut().filter(|r| r.model == "layer") {
+        r.reference_n = finest;
+        r.rel_error = (r.force_n - finest).abs() / finest;
+    }
+    Ok(rows)
+}
+
+/// Force, first-frame time and mean warm time per frame (ms).
+fn time_frames(scene: &Scene) -> anyhow::Result<(f64, f64, f64)> {
+    let mut sim = Simulator::new();
+    let t0 = Instant::now();
+    let first = sim.step(scene, 0.0)?;
+    let first_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let force = -first.wrench.force_n[2];
+    let (mut n, t1) = (0u32, Instant::now());
+    while n < 3 || (t1.elapsed().as_secs_f64() < 0.5 && n < 10_000) {
+        let out = sim.step(scene, 0.0)?;
+        std::hint::black_box(out.wrench);
+        n += 1;
+    }
+    Ok((force, first_ms, t1.elapsed().as_secs_f64() * 1e3 / n as f64))
+}
+
+/// Formats the rows as a Markdown table.
+pub fn table(rows: &[SimBenchRow]) -> String {
+    let mut s = String::from(
+        "| model | cell (mm) | ms/frame | first frame (ms) | F (N) | reference (N) | error |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        s.push_str(&format!(
+            "| {} | {} | {:.3} | {:.1} | {:.5} | {:.5} | {:.3}% |\n",
+            r.model,
+            r.cell_mm.map_or("analytic".into(), |c| c.to_string()),
+            r.ms_per_frame,
+            r.first_frame_ms,
+            r.force_n,
+            r.reference_n,
+            r.rel_error * 100.0
+        ));
+    }
+    s
+}
+
+/// Writes the error-against-time plot (log-log SVG).
+pub fn plot(rows: &[SimBenchRow], path: &Path) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    // Exact results (Hertz against itself, the finest layer grid) sit on a floor.
+    const FLOOR: f64 = 1e-5;
+    let pts = |r: &SimBenchRow| (r.ms_per_frame.max(1e-4), r.rel_error.max(FLOOR));
+    let (mut tmin, mut tmax) = (f64::INFINITY, 0.0_f64);
+    let mut emax = FLOOR * 10.0;
+    for r in rows {
+        let (t, e) = pts(r);
+        tmin = tmin.min(t);
+        tmax = tmax.max(t);
+        emax = emax.max(e);
+    }
+    let root = SVGBackend::new(path, (800, 560)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "rig bench sim: sphere R = 4 mm, d = 0.5 mm",
+            ("sans-serif", 20),
+        )
+        .margin(16)
+        .x_label_area_size(48)
+        .y_label_area_size(64)
+        .build_cartesian_2d(
+            (tmin / 2.0..tmax * 2.0).log_scale(),
+            (FLOOR / 2.0..emax * 2.0).log_scale(),
+        )?;
+    chart
+        .configure_mesh()
+        .x_desc("time per frame (ms)")
+        .y_desc("relative force error")
+        .draw()?;
+    let models = ["hertz", "winkler", "half-space", "layer-thick", "layer"];
+    for (i, m) in models.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        let series: Vec<(f64, f64)> = rows.iter().filter(|r| r.model == *m).map(pts).collect();
+        if series.is_empty() {
+            continue;
+        }
+        chart
+            .draw_series(LineSeries::new(series.clone(), colour.stroke_width(2)))?
+            .label(*m)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+        chart.draw_series(
+            series
+                .into_iter()
+                .map(|p| Circle::new(p, 4, colour.filled())),
+        )?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
+
+pub fn run(args: &SimBenchArgs) -> anyhow::Result<()> {
+    let rows = measure(args.quick)?;
+    println!("{}", table(&rows));
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let svg = args.out.join("sim.svg");
+    plot(&rows, &svg).with_context(|| format!("cannot write {}", svg.display()))?;
+    let csv = args.out.join("sim.csv");
+    let mut text =
+        String::from("model,cell_mm,ms_per_frame,first_frame_ms,force_n,reference_n,rel_error\n");
+    for r in &rows {
+        text.push_str(&format!(
+            "{},{},{},{},{},{},{}\n",
+            r.model,
+            r.cell_mm.map_or(String::new(), |c| c.to_string()),
+            r.ms_per_frame,
+            r.first_frame_ms,
+            r.force_n,
+            r.reference_n,
+            r.rel_error
+        ));
+    }
+    std::fs::write(&csv, text).with_context(|| format!("cannot write {}", csv.display()))?;
+    println!("wrote {} and {}", svg.display(), csv.display());
+    Ok(())
 }

@@ -1,2 +1,258 @@
-//! Cameras: the `FrameSource` trait, V4L2 capture and the simulated GelSight camera (being
-//! written).
+//! Cameras: the [`FrameSource`] trait and its two implementations.
+//!
+//! - [`v4l2`]: a UVC tactile sensor (GelSight Mini, R1.5) through Video4Linux2. The pure parts
+//!   — format negotiation, choosing the capture node, CLOCK_MONOTONIC → rig clock mapping,
+//!   drop detection from sequence gaps, the dedicated reading thread — are written over a small
+//!   [`v4l2::DeviceLayer`] trait and tested against a fake; the real layer (the `v4l` crate)
+//!   is behind the cargo feature `v4l`.
+//! - [`sim`]: the simulated GelSight camera of `hardware-mocks`, which renders the contact
+//!   scene at its frame rate on the shared clock.
+//!
+//! Every frame carries the device's timestamp and sequence number, the host time it was
+//! received, and the number of frames lost just before it, so the sync stage can pair it with
+//! force samples and the recorder can report drops.
+
+pub mod sim;
+pub mod v4l2;
+
+use std::future::Future;
+use std::pin::Pin;
+
+/// Pixel encoding of a frame's bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PixelFormat {
+    /// 8-bit RGB, row-major, no padding.
+    Rgb8,
+    /// YUV 4:2:2 packed (`Y0 U Y1 V`), what UVC cameras send uncompressed.
+    Yuyv,
+    /// Motion-JPEG: each frame is one JPEG image.
+    Mjpeg,
+}
+
+impl PixelFormat {
+    /// The V4L2 fourcc of the format.
+    pub fn fourcc(self) -> [u8; 4] {
+        match self {
+            PixelFormat::Rgb8 => *b"RGB3",
+            PixelFormat::Yuyv => *b"YUYV",
+            PixelFormat::Mjpeg => *b"MJPG",
+        }
+    }
+
+    /// The format of a V4L2 fourcc, if supported.
+    pub fn from_fourcc(fourcc: [u8; 4]) -> Option<Self> {
+        match &fourcc {
+            b"RGB3" => Some(PixelFormat::Rgb8),
+            b"YUYV" => Some(PixelFormat::Yuyv),
+            b"MJPG" => Some(PixelFormat::Mjpeg),
+            _ => None,
+        }
+    }
+}
+
+/// The negotiated stream format.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameFormat {
+    pub pixel: PixelFormat,
+    pub width: u32,
+    pub height: u32,
+    /// Frame rate the device was set to (what it claims; the real rate may be lower).
+    pub fps: f64,
+}
+
+/// One captured frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Device frame counter (V4L2 `sequence`); gaps mean lost frames.
+    pub sequence: u64,
+    /// Device timestamp, ns (V4L2: the buffer's CLOCK_MONOTONIC stamp, uvcvideo: start of
+    /// frame; simulated camera: its own device clock).
+    pub device_ts_ns: u64,
+    /// Capture time on the rig's clock, when the source can map its device clock itself
+    /// (V4L2 CLOCK_MONOTONIC stamps); `None`: map `device_ts_ns` with the sync estimator.
+    pub capture_t_ns: Option<u64>,
+    /// When the reader received the frame, rig clock ns.
+    pub received_t_ns: u64,
+    /// Frames lost between the previous delivered frame and this one.
+    pub dropped_before: u64,
+    pub format: FrameFormat,
+    /// Pixel data in `format.pixel`.
+    pub data: Vec<u8>,
+}
+
+impl Frame {
+    /// The frame as an RGB image (RGB and YUYV; MJPEG frames stay compressed — store them as
+    /// JPEG or decode elsewhere).
+    pub fn to_rgb(&self) -> Result<image::RgbImage, CameraError> {
+        let (w, h) = (self.format.width, self.format.height);
+        let n = w as usize * h as usize;
+        match self.format.pixel {
+            PixelFormat::Rgb8 => {
+                if self.data.len() < n * 3 {
+                    return Err(CameraError::ShortFrame {
+                        got: self.data.len(),
+                        want: n * 3,
+                    });
+                }
+                image::RgbImage::from_raw(w, h, self.data[..n * 3].to_vec()).ok_or(
+                    CameraError::ShortFrame {
+                        got: self.data.len(),
+                        want: n * 3,
+                    },
+                )
+            }
+            PixelFormat::Yuyv => yuyv_to_rgb(&self.data, w, h),
+            PixelFormat::Mjpeg => Err(CameraError::Unsupported(
+                "MJPEG frames are not decoded here; record them as JPEG".into(),
+            )),
+        }
+    }
+}
+
+/// BT.601 limited-range YUYV → RGB.
+pub fn yuyv_to_rgb(data: &[u8], width: u32, height: u32) -> Result<image::RgbImage, CameraError> {
+    let want = width as usize * height as usize * 2;
+    if data.len() < want || width % 2 == 1 {
+        return Err(CameraError::ShortFrame {
+            got: data.len(),
+            want,
+        });
+    }
+    let mut out = Vec::with_capacity(want / 2 * 3);
+    for q in data[..want].chunks_exact(4) {
+        let (u, v) = (f32::from(q[1]) - 128.0, f32::from(q[3]) - 128.0);
+        for y in [q[0], q[2]] {
+            let c = 1.164 * (f32::from(y) - 16.0);
+            let px = [c + 1.596 * v, c - 0.392 * u - 0.813 * v, c + 2.017 * u];
+            out.extend(px.map(|x| x.round().clamp(0.0, 255.0) as u8));
+        }
+    }
+    image::RgbImage::from_raw(width, height, out).ok_or(CameraError::ShortFrame {
+        got: data.len(),
+        want,
+    })
+}
+
+/// Counters of a frame source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CaptureStats {
+    /// Frames delivered to the caller.
+    pub frames: u64,
+    /// Frames known to be lost (sequence gaps, plus frames the reader had to discard).
+    pub dropped: u64,
+}
+
+/// Why a camera cannot deliver.
+#[derive(Debug, thiserror::Error)]
+pub enum CameraError {
+    #[error("camera {device}: {reason}")]
+    Device { device: String, reason: String },
+    #[error(
+        "camera offers no format the rig can use (wanted {wanted}); offered: {offered}. Pick a \
+         resolution/rate from the offered list in [camera]"
+    )]
+    NoFormat { wanted: String, offered: String },
+    #[error("frame has {got} bytes, expected at least {want}")]
+    ShortFrame { got: usize, want: usize },
+    #[error("{0}")]
+    Unsupported(String),
+    #[error("the camera stream ended")]
+    Ended,
+}
+
+/// A boxed future of the next frame.
+pub type FrameFuture<'a> = Pin<Box<dyn Future<Output = Result<Frame, CameraError>> + Send + 'a>>;
+
+/// A stream of camera frames.
+pub trait FrameSource: Send {
+    /// The negotiated format.
+    fn format(&self) -> FrameFormat;
+    /// Waits for the next frame. [`CameraError::Ended`] once the source has stopped.
+    fn next_frame(&mut self) -> FrameFuture<'_>;
+    /// Frames delivered and lost so far.
+    fn stats(&self) -> CaptureStats;
+}
+
+/// Counts lost frames from device sequence numbers (V4L2 `sequence` is a `u32` that wraps).
+///
+/// A gap of `n` between consecutive sequence numbers means `n − 1` frames were lost. A number
+/// that goes backwards (the driver restarted the stream) starts counting afresh, losing nothing.
+#[derive(Debug, Clone, Default)]
+pub struct SequenceTracker {
+    last: Option<u64>,
+    wrap_bits: Option<u32>,
+    lost: u64,
+}
+
+impl SequenceTracker {
+    /// A tracker for a counter of `bits` bits (32 for V4L2); `None`: a 64-bit counter.
+    pub fn new(bits: Option<u32>) -> Self {
+        Self {
+            last: None,
+            wrap_bits: bits.filter(|&b| (1..64).contains(&b)),
+            lost: 0,
+        }
+    }
+
+    /// Feeds the next sequence number; returns how many frames were lost just before it.
+    pub fn observe(&mut self, seq: u64) -> u64 {
+        let gap = match (self.last, self.wrap_bits) {
+            (None, _) => 0,
+            (Some(last), Some(bits)) => {
+                let modulus = 1u64 << bits;
+                let d = seq.wrapping_sub(last) & (modulus - 1);
+                // A "gap" of more than half the counter is a step backwards: a restart.
+                if d == 0 || d > modulus / 2 { 0 } else { d - 1 }
+            }
+            (Some(last), None) => {
+                if seq > last {
+                    seq - last - 1
+                } else {
+                    0
+                }
+            }
+        };
+        self.last = Some(seq);
+        self.lost += gap;
+        gap
+    }
+
+    /// Frames lost so far.
+    pub fn lost(&self) -> u64 {
+        self.lost
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sequence_gaps_count_lost_frames_across_wraparound() {
+        let mut t = SequenceTracker::new(Some(32));
+        assert_eq!(t.observe(u64::from(u32::MAX) - 1), 0);
+        assert_eq!(t.observe(u64::from(u32::MAX)), 0);
+        assert_eq!(t.observe(2), 2); // 0 and 1 lost across the wrap
+        assert_eq!(t.observe(3), 0);
+        assert_eq!(t.observe(1), 0); // restart: backwards, nothing lost
+        assert_eq!(t.observe(5), 3);
+        assert_eq!(t.lost(), 5);
+    }
+
+    #[test]
+    fn yuyv_grey_and_bad_sizes() {
+        // Y = 126, U = V = 128: mid grey.
+        let img = yuyv_to_rgb(&[126, 128, 126, 128], 2, 1).unwrap();
+        assert_eq!(img.get_pixel(0, 0).0, [128, 128, 128]);
+        assert!(yuyv_to_rgb(&[0; 3], 2, 1).is_err());
+        assert!(yuyv_to_rgb(&[0; 8], 3, 1).is_err());
+    }
+
+    #[test]
+    fn fourcc_round_trip() {
+        for p in [PixelFormat::Rgb8, PixelFormat::Yuyv, PixelFormat::Mjpeg] {
+            assert_eq!(PixelFormat::from_fourcc(p.fourcc()), Some(p));
+        }
+        assert_eq!(PixelFormat::from_fourcc(*b"H264"), None);
+    }
+}

@@ -9,6 +9,15 @@
 //! When every listener is bound it prints one line on stdout, `ur5e ready rtde=ADDR
 //! dashboard=ADDR script=ADDR`, so a parent process can wait for it; logs go to stderr
 //! (`RUST_LOG` filters them). SIGINT and SIGTERM shut it down cleanly.
+//!
+//! The simulated Nano17 front ends (see `hardware_mocks::nano17`), each under a constant load
+//! `--load Fx,Fy,Fz,Tx,Ty,Tz` (N, N·mm; default none) with noise and a gauge offset:
+//!
+//! ```text
+//! rig-mock nano17-serial [--rate-hz 1000] [--mode ascii|binary]   prints `nano17-serial ready pty=PATH`
+//! rig-mock netft [--port 49152] [--host 127.0.0.1] [--rate-hz 7000] prints `netft ready addr=ADDR`
+//! rig-mock nano17-daq [--rate-hz 1000]                             prints `nano17-daq ready pty=PATH`
+//! ```
 
 use std::io::Write;
 use std::net::{IpAddr, SocketAddr};
@@ -34,6 +43,139 @@ struct Cli {
 enum Mock {
     /// A UR5e controller: RTDE, dashboard and secondary (script) interface.
     Ur5e(Ur5eArgs),
+    /// An ATI F/T controller with a Nano17, on a pty (prints the pty path).
+    #[command(name = "nano17-serial")]
+    Nano17Serial(Nano17Args),
+    /// An ATI Net F/T with a Nano17, on UDP.
+    Netft(NetftArgs),
+    /// A DAQ gauge stream of a Nano17, on a pty (prints the pty path).
+    #[command(name = "nano17-daq")]
+    Nano17Daq(Nano17Args),
+}
+
+#[derive(clap::Args, Debug)]
+struct Nano17Args {
+    /// Records per second.
+    #[arg(long, default_value_t = 1000.0)]
+    rate_hz: f64,
+    /// Serial controller output mode at power-up (the rig sets it with CD A / CD B anyway).
+    #[arg(long, value_enum, default_value_t = ModeArg::Ascii)]
+    mode: ModeArg,
+    /// Constant true load Fx,Fy,Fz,Tx,Ty,Tz (N, N·mm).
+    #[arg(long, value_parser = parse_pose, allow_hyphen_values = true)]
+    load: Option<Pose>,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+enum ModeArg {
+    Ascii,
+    Binary,
+}
+
+#[derive(clap::Args, Debug)]
+struct NetftArgs {
+    /// UDP port (49152 on a real Net F/T); 0 picks a free one.
+    #[arg(long, default_value_t = rig_core::ft::netft::RDT_PORT)]
+    port: u16,
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1")]
+    host: IpAddr,
+    /// Records per second (a real Net F/T: up to 7000).
+    #[arg(long, default_value_t = 7000.0)]
+    rate_hz: f64,
+    /// Constant true load Fx,Fy,Fz,Tx,Ty,Tz (N, N·mm).
+    #[arg(long, value_parser = parse_pose, allow_hyphen_values = true)]
+    load: Option<Pose>,
+}
+
+fn load_source(load: Option<Pose>) -> hardware_mocks::truth::SharedWrenchSource {
+    let w = load.map_or(rig_core::wrench::Wrench::ZERO, |p| {
+        rig_core::wrench::Wrench::from_array(p.to_array())
+    });
+    std::sync::Arc::new(hardware_mocks::truth::ConstantWrench(w))
+}
+
+fn check_rate(rate_hz: f64) -> anyhow::Result<()> {
+    if !(rate_hz.is_finite() && rate_hz > 0.0 && rate_hz <= 100_000.0) {
+        bail!("--rate-hz must be in (0, 100000], got {rate_hz}");
+    }
+    Ok(())
+}
+
+fn ready(line: String) -> anyhow::Result<()> {
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{line}")?;
+    out.flush()?;
+    Ok(())
+}
+
+async fn run_nano17_serial(args: Nano17Args) -> anyhow::Result<()> {
+    use hardware_mocks::nano17::{SensorModel, serial};
+    check_rate(args.rate_hz)?;
+    let cfg = serial::SerialMockConfig {
+        rate_hz: args.rate_hz,
+        mode: match args.mode {
+            ModeArg::Ascii => rig_core::ft::serial::OutputMode::Ascii,
+            ModeArg::Binary => rig_core::ft::serial::OutputMode::Binary,
+        },
+        ..serial::SerialMockConfig::default()
+    };
+    let mock = serial::SerialControllerMock::start(
+        cfg,
+        SensorModel::nano17(17),
+        load_source(args.load),
+        Clock::system(),
+    )
+    .context("could not open a pty for the simulated F/T controller")?;
+    ready(format!("nano17-serial ready pty={}", mock.path().display()))?;
+    wait_for_signal().await?;
+    mock.shutdown().await;
+    Ok(())
+}
+
+async fn run_nano17_daq(args: Nano17Args) -> anyhow::Result<()> {
+    use hardware_mocks::nano17::{SensorModel, daq};
+    check_rate(args.rate_hz)?;
+    let mock = daq::DaqMock::start(
+        daq::DaqMockConfig {
+            rate_hz: args.rate_hz,
+            ..daq::DaqMockConfig::default()
+        },
+        SensorModel::nano17(18),
+        load_source(args.load),
+        Clock::system(),
+    )
+    .context("could not open a pty for the simulated DAQ")?;
+    ready(format!("nano17-daq ready pty={}", mock.path().display()))?;
+    wait_for_signal().await?;
+    mock.shutdown().await;
+    Ok(())
+}
+
+async fn run_netft(args: NetftArgs) -> anyhow::Result<()> {
+    use hardware_mocks::nano17::{SensorModel, netft};
+    check_rate(args.rate_hz)?;
+    let mock = netft::NetFtMock::start(
+        netft::NetFtMockConfig {
+            bind: SocketAddr::new(args.host, args.port),
+            rate_hz: args.rate_hz,
+            ..netft::NetFtMockConfig::default()
+        },
+        SensorModel::nano17(19),
+        load_source(args.load),
+        Clock::system(),
+    )
+    .await
+    .with_context(|| {
+        format!(
+            "could not listen on UDP {}:{}: is another Net F/T mock running?",
+            args.host, args.port
+        )
+    })?;
+    ready(format!("netft ready addr={}", mock.addr()))?;
+    wait_for_signal().await?;
+    mock.shutdown().await;
+    Ok(())
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
@@ -159,6 +301,9 @@ fn main() -> anyhow::Result<()> {
     rt.block_on(async {
         match cli.mock {
             Mock::Ur5e(args) => run_ur5e(args).await,
+            Mock::Nano17Serial(args) => run_nano17_serial(args).await,
+            Mock::Netft(args) => run_netft(args).await,
+            Mock::Nano17Daq(args) => run_nano17_daq(args).await,
         }
     })
 }

@@ -1,0 +1,326 @@
+//! The simulated GelSight camera: renders the scene at its frame rate on the shared clock.
+//!
+//! Real UVC tactile sensors are not ideal cameras (references: GelSight Mini is nominally
+//! 25 fps, users see 15-18 fps through some back ends; frames are lost when the reader falls
+//! behind), so this one can be made just as imperfect, all of it seeded and reproducible:
+//!
+//! - **Real rate below nominal**: frames come every `1 / actual_fps`, not `1 / nominal_fps`.
+//! - **Jitter**: each capture time moves by a uniform offset within `±jitter_ns`.
+//! - **Injected drops**: given sequence numbers, and/or a drop probability. A dropped frame is
+//!   not rendered (no work) but still consumes its sequence number, as a V4L2 driver's
+//!   `sequence` counter does, so the reader detects the gap.
+//! - **Overruns**: the camera keeps `queue_len` frames (the driver's buffers); when the reader
+//!   falls further behind, new frames are lost, counted, and again leave a sequence gap.
+//! - **Device clock**: frames carry a device timestamp from the camera's own clock (an offset
+//!   and a drift in ppm from the shared clock), as hardware does; the rig must map it.
+//!
+//! The capture time in clock nanoseconds (`capture_t_ns`) is also attached: the ground truth a
+//! test compares the rig's timestamp mapping against.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use rig_core::clock::Clock;
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+
+use crate::sim::{Scene, Simulator};
+
+/// Renders the frame captured at clock time `t_ns`; `None`: no image (counted as a failed
+/// render, the sequence number is consumed).
+pub trait FrameRenderer: Send + Sync + 'static {
+    fn render_at(&self, t_ns: u64) -> Option<image::RgbImage>;
+}
+
+impl<F> FrameRenderer for F
+where
+    F: Fn(u64) -> Option<image::RgbImage> + Send + Sync + 'static,
+{
+    fn render_at(&self, t_ns: u64) -> Option<image::RgbImage> {
+        self(t_ns)
+    }
+}
+
+/// A renderer that simulates `scene_at(t_ns)` with one [`Simulator`] (so friction history
+/// carries from frame to frame) and returns its image. The scene must ask for an image
+/// (`effects.image`) and carry optics; a scene that cannot be simulated gives no frame.
+pub fn scene_renderer<S>(scene_at: S, noise_seed: u64) -> impl FrameRenderer
+where
+    S: Fn(u64) -> Scene + Send + Sync + 'static,
+{
+    let sim = Mutex::new(Simulator::with_noise_seed(noise_seed));
+    move |t_ns: u64| {
+        let scene = scene_at(t_ns);
+        let mut sim = sim.lock().unwrap_or_else(|p| p.into_inner());
+        sim.step(&scene, t_ns as f64 * 1e-9).ok()?.image
+    }
+}
+
+/// How the simulated camera behaves.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimCameraConfig {
+    /// The rate the camera claims (what a V4L2 driver would report), Hz.
+    pub nominal_fps: f64,
+    /// The rate it really delivers, Hz (≤ nominal; GelSight Mini: 25 claimed, often less).
+    pub actual_fps: f64,
+    /// Capture-time jitter: each frame moves by a uniform offset in `±jitter_ns`.
+    pub jitter_ns: u64,
+    /// Probability that a frame is lost (0..1).
+    pub drop_probability: f64,
+    /// Sequence numbers of frames to lose.
+    pub drop_sequences: Vec<u64>,
+    /// Seed of the jitter and random drops.
+    pub seed: u64,
+    /// Device clock: `device_ts = device_offset_ns + t · (1 + drift_ppm · 10⁻⁶)`.
+    pub device_offset_ns: u64,
+    pub drift_ppm: f64,
+    /// Frames buffered for a slow reader before new ones are lost.
+    pub queue_len: usize,
+}
+
+impl Default for SimCameraConfig {
+    fn default() -> Self {
+        Self {
+            nominal_fps: 25.0,
+            actual_fps: 25.0,
+            jitter_ns: 0,
+            drop_probability: 0.0,
+            drop_sequences: Vec::new(),
+            seed: 0,
+            device_offset_ns: 1_000_000_000_000,
+            drift_ppm: 0.0,
+            queue_len: 4,
+        }
+    }
+}
+
+impl SimCameraConfig {
+    /// A camera delivering `fps` exactly, with no imperfection.
+    pub fn ideal(fps: f64) -> Self {
+        Self {
+            nominal_fps: fps,
+            actual_fps: fps,
+            ..Self::default()
+        }
+    }
+
+    /// Checks the values; the message names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        if !pos(self.nominal_fps) {
+            return Err(format!("nominal_fps {} must be > 0", self.nominal_fps));
+        }
+        if !pos(self.actual_fps) || self.actual_fps > self.nominal_fps {
+            return Err(format!(
+                "actual_fps {} must be > 0 and at most nominal_fps {}",
+                self.actual_fps, self.nominal_fps
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.drop_probability) {
+            return Err(format!(
+                "drop_probability {} must be in [0, 1]",
+                self.drop_probability
+            ));
+        }
+        if !self.drift_ppm.is_finite() || self.drift_ppm.abs() > 1e5 {
+            return Err(format!("drift_ppm {} must be within ±1e5", self.drift_ppm));
+        }
+        if self.queue_len == 0 {
+            return Err("queue_len must be at least 1".into());
+        }
+        Ok(())
+    }
+
+    /// Device timestamp of clock time `t_ns`.
+    pub fn device_ts_ns(&self, t_ns: u64) -> u64 {
+        let drift = t_ns as f64 * self.drift_ppm * 1e-6;
+        (self.device_offset_ns as f64 + t_ns as f64 + drift).max(0.0) as u64
+    }
+}
+
+/// One delivered frame.
+#[derive(Debug, Clone)]
+pub struct SimFrame {
+    /// Frame counter of the camera: consecutive, except where frames were lost.
+    pub sequence: u64,
+    /// Timestamp from the camera's own clock, ns.
+    pub device_ts_ns: u64,
+    /// Ground truth: the shared clock's time of the capture, ns.
+    pub capture_t_ns: u64,
+    pub image: image::RgbImage,
+}
+
+/// Counters of a running camera.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SimCameraStats {
+    /// Frames rendered and delivered to the queue.
+    pub delivered: u64,
+    /// Frames lost on purpose (drop list or probability).
+    pub injected_drops: u64,
+    /// Frames lost because the reader was `queue_len` frames behind.
+    pub overruns: u64,
+    /// Frames whose scene could not be rendered.
+    pub failed_renders: u64,
+}
+
+#[derive(Default)]
+struct Counters {
+    delivered: AtomicU64,
+    injected: AtomicU64,
+    overruns: AtomicU64,
+    failed: AtomicU64,
+}
+
+/// A running simulated camera. Dropping it stops the capture task.
+pub struct SimCamera {
+    rx: mpsc::Receiver<SimFrame>,
+    task: JoinHandle<()>,
+    counters: Arc<Counters>,
+    config: SimCameraConfig,
+}
+
+impl std::fmt::Debug for SimCamera {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimCamera")
+            .field("config", &self.config)
+            .field("stats", &self.stats())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Drop for SimCamera {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+impl SimCamera {
+    /// Starts capturing on `clock`: the first frame is due one period after now. Must be called
+    /// within a tokio runtime.
+    pub fn spawn(
+        clock: Clock,
+        config: SimCameraConfig,
+        renderer: Arc<dyn FrameRenderer>,
+    ) -> Result<Self, String> {
+        config.validate()?;
+        let (tx, rx) = mpsc::channel(config.queue_len);
+        let counters = Arc::new(Counters::default());
+        let task = tokio::spawn(capture_loop(
+            clock,
+            config.clone(),
+            renderer,
+            tx,
+            counters.clone(),
+        ));
+        Ok(Self {
+            rx,
+            task,
+            counters,
+            config,
+        })
+    }
+
+    /// The next frame; `None` once the capture task has ended.
+    pub async fn recv(&mut self) -> Option<SimFrame> {
+        self.rx.recv().await
+    }
+
+    /// A frame already waiting, if any.
+    pub fn try_recv(&mut self) -> Option<SimFrame> {
+        self.rx.try_recv().ok()
+    }
+
+    pub fn config(&self) -> &SimCameraConfig {
+        &self.config
+    }
+
+    pub fn stats(&self) -> SimCameraStats {
+        SimCameraStats {
+            delivered: self.counters.delivered.load(Ordering::Relaxed),
+            injected_drops: self.counters.injected.load(Ordering::Relaxed),
+            overruns: self.counters.overruns.load(Ordering::Relaxed),
+            failed_renders: self.counters.failed.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// Capture time of frame `seq` (before `start`): `start + (seq + 1)/actual_fps + jitter`.
+pub fn capture_time_ns(config: &SimCameraConfig, start_ns: u64, seq: u64) -> u64 {
+    let period = 1e9 / config.actual_fps;
+    let nominal = start_ns as f64 + (seq + 1) as f64 * period;
+    let jitter = if config.jitter_ns > 0 {
+        let j = config.jitter_ns.min((period / 2.0) as u64) as f64;
+        (2.0 * unit(config.seed, seq, 0) - 1.0) * j
+    } else {
+        0.0
+    };
+    (nominal + jitter).max(0.0) as u64
+}
+
+/// Whether frame `seq` is lost on purpose.
+pub fn is_dropped(config: &SimCameraConfig, seq: u64) -> bool {
+    config.drop_sequences.contains(&seq)
+        || (config.drop_probability > 0.0 && unit(config.seed, seq, 1) < config.drop_probability)
+}
+
+fn unit(seed: u64, seq: u64, stream: u64) -> f64 {
+    // SplitMix64's finaliser over (seed, seq, stream).
+    let mut z = (seed ^ seq.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ stream.rotate_left(29))
+        .wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64
+}
+
+async fn capture_loop(
+    clock: Clock,
+    config: SimCameraConfig,
+    renderer: Arc<dyn FrameRenderer>,
+    tx: mpsc::Sender<SimFrame>,
+    counters: Arc<Counters>,
+) {
+    let start = clock.now_ns();
+    for seq in 0u64.. {
+        let t = capture_time_ns(&config, start, seq);
+        clock.sleep_until_ns(t).await;
+        if tx.is_closed() {
+            return;
+        }
+        if is_dropped(&config, seq) {
+            counters.injected.fetch_add(1, Ordering::Relaxed);
+            continue;
+        }
+        // Rendering is CPU work: keep it off the async workers.
+        let r = renderer.clone();
+        let image = match tokio::task::spawn_blocking(move || r.render_at(t)).await {
+            Ok(Some(img)) => img,
+            _ => {
+                counters.failed.fetch_add(1, Ordering::Relaxed);
+                continue;
+            }
+        };
+        let frame = SimFrame {
+            sequence: seq,
+            device_ts_ns: config.device_ts_ns(t),
+            capture_t_ns: t,
+            image,
+        };
+        match tx.try_send(frame) {
+            Ok(()) => {
+                counters.delivered.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                counters.overruns.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => return,
+        }
+        tokio::task::yield_now().await;
+    }
+}
+
+/// Sleeps one frame period of clock time (helper for tests that step a manual clock).
+pub fn period(config: &SimCameraConfig) -> Duration {
+    Duration::from_secs_f64(1.0 / config.actual_fps)
+}

@@ -1,0 +1,290 @@
+//! ATI Net F/T Raw Data Transfer (RDT) over UDP, sans I/O.
+//!
+//! From the Net F/T manual (section "UDP interface using RDT"): the box listens on UDP port
+//! 49152. A request is 8 bytes, big-endian:
+//!
+//! ```text
+//! u16 header = 0x1234 | u16 command | u32 sample_count (0 = stream until told to stop)
+//! ```
+//!
+//! Commands: 0 stop streaming, 2 start real-time streaming, 3 start buffered streaming,
+//! 4 start multi-unit streaming, 0x41 reset threshold latch, 0x42 set software bias. A record
+//! is 36 bytes, big-endian:
+//!
+//! ```text
+//! u32 rdt_sequence | u32 ft_sequence | u32 status | i32 Fx Fy Fz Tx Ty Tz (counts)
+//! ```
+//!
+//! `rdt_sequence` counts RDT packets sent since streaming started (u32, wraps);
+//! `ft_sequence` counts the box's internal samples. Buffered mode packs several records into
+//! one datagram. A non-zero status means the box reports a problem (bit 31: error). Newtons are
+//! counts / counts-per-force, torques counts / counts-per-torque (from the box's configuration
+//! page; the factory default is 1 000 000 counts per N and per N·m).
+//!
+//! UDP may lose, reorder and duplicate packets. [`SequenceTracker`] classifies every arriving
+//! `rdt_sequence` and keeps exact counts: a gap adds its size to `lost`; a packet that later
+//! fills a gap moves one from `lost` to `reordered`; a sequence seen before is a duplicate.
+
+/// The Net F/T's RDT port.
+pub const RDT_PORT: u16 = 49152;
+/// Request header.
+pub const RDT_HEADER: u16 = 0x1234;
+/// Bytes of one request.
+pub const REQUEST_LEN: usize = 8;
+/// Bytes of one record.
+pub const RECORD_LEN: usize = 36;
+/// Fastest real-time RDT output of a Net F/T, Hz.
+pub const MAX_RDT_RATE_HZ: f64 = 7000.0;
+/// Status bit 31: the box reports an error.
+pub const STATUS_ERROR: u32 = 1 << 31;
+
+/// RDT commands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RdtCommand {
+    Stop,
+    StartRealtime,
+    StartBuffered,
+    StartMultiUnit,
+    ResetThresholdLatch,
+    SetSoftwareBias,
+    Other(u16),
+}
+
+impl RdtCommand {
+    pub fn code(self) -> u16 {
+        match self {
+            RdtCommand::Stop => 0,
+            RdtCommand::StartRealtime => 2,
+            RdtCommand::StartBuffered => 3,
+            RdtCommand::StartMultiUnit => 4,
+            RdtCommand::ResetThresholdLatch => 0x41,
+            RdtCommand::SetSoftwareBias => 0x42,
+            RdtCommand::Other(c) => c,
+        }
+    }
+
+    pub fn from_code(c: u16) -> Self {
+        match c {
+            0 => RdtCommand::Stop,
+            2 => RdtCommand::StartRealtime,
+            3 => RdtCommand::StartBuffered,
+            4 => RdtCommand::StartMultiUnit,
+            0x41 => RdtCommand::ResetThresholdLatch,
+            0x42 => RdtCommand::SetSoftwareBias,
+            c => RdtCommand::Other(c),
+        }
+    }
+}
+
+/// Why bytes are not a valid RDT message.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RdtError {
+    #[error("RDT request has {0} bytes, expected 8")]
+    RequestLength(usize),
+    #[error("RDT request header {0:#06x}, expected 0x1234")]
+    Header(u16),
+    #[error("RDT datagram has {0} bytes, not a positive multiple of 36")]
+    RecordLength(usize),
+}
+
+/// An RDT request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RdtRequest {
+    pub command: RdtCommand,
+    /// Records to send; 0 = until stopped.
+    pub sample_count: u32,
+}
+
+impl RdtRequest {
+    pub fn encode(&self) -> [u8; REQUEST_LEN] {
+        let mut b = [0u8; REQUEST_LEN];
+        b[0..2].copy_from_slice(&RDT_HEADER.to_be_bytes());
+        b[2..4].copy_from_slice(&self.command.code().to_be_bytes());
+        b[4..8].copy_from_slice(&self.sample_count.to_be_bytes());
+        b
+    }
+
+    pub fn decode(b: &[u8]) -> Result<Self, RdtError> {
+        if b.len() != REQUEST_LEN {
+            return Err(RdtError::RequestLength(b.len()));
+        }
+        let header = u16::from_be_bytes([b[0], b[1]]);
+        if header != RDT_HEADER {
+            return Err(RdtError::Header(header));
+        }
+        Ok(Self {
+            command: RdtCommand::from_code(u16::from_be_bytes([b[2], b[3]])),
+            sample_count: u32::from_be_bytes([b[4], b[5], b[6], b[7]]),
+        })
+    }
+}
+
+/// One RDT record.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RdtRecord {
+    pub rdt_sequence: u32,
+    pub ft_sequence: u32,
+    pub status: u32,
+    pub counts: [i32; 6],
+}
+
+impl RdtRecord {
+    pub fn encode(&self) -> [u8; RECORD_LEN] {
+        let mut b = [0u8; RECORD_LEN];
+        b[0..4].copy_from_slice(&self.rdt_sequence.to_be_bytes());
+        b[4..8].copy_from_slice(&self.ft_sequence.to_be_bytes());
+        b[8..12].copy_from_slice(&self.status.to_be_bytes());
+        for i in 0..6 {
+            b[12 + 4 * i..16 + 4 * i].copy_from_slice(&self.counts[i].to_be_bytes());
+        }
+        b
+    }
+
+    /// Decodes exactly one 36-byte record.
+    pub fn decode(b: &[u8]) -> Result<Self, RdtError> {
+        if b.len() != RECORD_LEN {
+            return Err(RdtError::RecordLength(b.len()));
+        }
+        let u = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let mut counts = [0i32; 6];
+        for (k, c) in counts.iter_mut().enumerate() {
+            *c = u(12 + 4 * k) as i32;
+        }
+        Ok(Self {
+            rdt_sequence: u(0),
+            ft_sequence: u(4),
+            status: u(8),
+            counts,
+        })
+    }
+
+    /// Decodes a datagram of one or more records (buffered mode packs several).
+    pub fn decode_datagram(b: &[u8]) -> Result<impl Iterator<Item = RdtRecord> + '_, RdtError> {
+        if b.is_empty() || !b.len().is_multiple_of(RECORD_LEN) {
+            return Err(RdtError::RecordLength(b.len()));
+        }
+        Ok(b.chunks_exact(RECORD_LEN)
+            .filter_map(|c| Self::decode(c).ok()))
+    }
+
+    /// N and N·mm from counts.
+    #[allow(clippy::needless_range_loop)] // axis i picks its unit
+    pub fn to_wrench(&self, counts_per_force: f64, counts_per_torque: f64) -> [f64; 6] {
+        let mut w = [0.0; 6];
+        for i in 0..6 {
+            let k = if i < 3 {
+                counts_per_force
+            } else {
+                counts_per_torque
+            };
+            w[i] = f64::from(self.counts[i]) / k;
+        }
+        w
+    }
+}
+
+/// How one arriving sequence number relates to those before it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Arrival {
+    /// The first packet seen.
+    First,
+    /// The next one expected.
+    InOrder,
+    /// Newer than expected: `missing` packets in between are (for now) lost.
+    AfterGap { missing: u32 },
+    /// Older than the newest, filling an earlier gap: reordered, not lost.
+    Late,
+    /// Seen before, or too old to tell (beyond the tracking window).
+    Duplicate,
+}
+
+/// Exact loss / reorder / duplicate counts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct SequenceStats {
+    pub received: u64,
+    pub lost: u64,
+    pub reordered: u64,
+    pub duplicates: u64,
+    /// Gaps larger than [`MAX_TRACKED_GAP`] (counted in `lost` but not individually tracked).
+    pub large_gaps: u64,
+}
+
+/// Largest gap whose missing sequence numbers are remembered individually (so a late packet
+/// can be told from a duplicate). Larger jumps (a box restart) still count as lost.
+pub const MAX_TRACKED_GAP: u32 = 4096;
+/// How far behind the newest sequence a missing number is still remembered.
+pub const TRACK_WINDOW: u32 = 1 << 16;
+
+/// Tracks a u32 sequence (wrapping) for loss and reordering. See the module docs.
+#[derive(Debug, Clone, Default)]
+pub struct SequenceTracker {
+    newest: Option<u32>,
+    missing: std::collections::BTreeSet<u64>,
+    // Unwrapped counterpart of `newest`, so that the missing set orders correctly across wraps.
+    newest_unwrapped: u64,
+    stats: SequenceStats,
+}
+
+impl SequenceTracker {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn stats(&self) -> SequenceStats {
+        self.stats
+    }
+
+    /// Classifies `seq` and updates the counts.
+    pub fn observe(&mut self, seq: u32) -> Arrival {
+        self.stats.received += 1;
+        let Some(newest) = self.newest else {
+            self.newest = Some(seq);
+            self.newest_unwrapped = u64::from(seq) + (1 << 32);
+            return Arrival::First;
+        };
+        let delta = seq.wrapping_sub(newest) as i32;
+        if delta > 0 {
+            let missing = (delta - 1) as u32;
+            let base = self.newest_unwrapped;
+            if missing > MAX_TRACKED_GAP {
+                self.stats.large_gaps += 1;
+            } else {
+                for k in 1..=u64::from(missing) {
+                    self.missing.insert(base + k);
+                }
+            }
+            self.stats.lost += u64::from(missing);
+            self.newest = Some(seq);
+            self.newest_unwrapped = base + delta as u64;
+            // Forget gaps too old to be filled.
+            let horizon = self
+                .newest_unwrapped
+                .saturating_sub(u64::from(TRACK_WINDOW));
+            while let Some(&first) = self.missing.first() {
+                if first >= horizon {
+                    break;
+                }
+                self.missing.pop_first();
+            }
+            if missing == 0 {
+                Arrival::InOrder
+            } else {
+                Arrival::AfterGap { missing }
+            }
+        } else if delta == 0 {
+            self.stats.duplicates += 1;
+            Arrival::Duplicate
+        } else {
+            let back = u64::from(delta.unsigned_abs());
+            let unwrapped = self.newest_unwrapped.saturating_sub(back);
+            if self.missing.remove(&unwrapped) {
+                self.stats.lost -= 1;
+                self.stats.reordered += 1;
+                Arrival::Late
+            } else {
+                self.stats.duplicates += 1;
+                Arrival::Duplicate
+            }
+        }
+    }
+}

@@ -1,0 +1,83 @@
+//! The simulated GelSight camera as a [`FrameSource`].
+//!
+//! `hardware_mocks::camera::SimCamera` renders frames at its (imperfect) rate on the shared
+//! clock; this adapter stamps them with the rig's receive time, counts sequence gaps and hands
+//! them out as RGB frames. The device timestamp comes from the camera's own clock and is left
+//! for the sync estimator to map (`capture_t_ns` is `None`), as with any external device.
+
+use hardware_mocks::camera::SimCamera;
+use rig_core::clock::Clock;
+
+use super::{
+    CameraError, CaptureStats, Frame, FrameFormat, FrameFuture, FrameSource, PixelFormat,
+    SequenceTracker,
+};
+
+/// A [`FrameSource`] over a running [`SimCamera`].
+pub struct SimFrameSource {
+    camera: SimCamera,
+    clock: Clock,
+    format: FrameFormat,
+    seq: SequenceTracker,
+    frames: u64,
+}
+
+impl SimFrameSource {
+    /// Wraps a camera rendering `width` × `height` images.
+    pub fn new(camera: SimCamera, clock: Clock, width: u32, height: u32) -> Self {
+        let fps = camera.config().nominal_fps;
+        Self {
+            camera,
+            clock,
+            format: FrameFormat {
+                pixel: PixelFormat::Rgb8,
+                width,
+                height,
+                fps,
+            },
+            seq: SequenceTracker::new(None),
+            frames: 0,
+        }
+    }
+
+    /// The camera's own counters (delivered, injected drops, overruns).
+    pub fn camera_stats(&self) -> hardware_mocks::camera::SimCameraStats {
+        self.camera.stats()
+    }
+}
+
+impl FrameSource for SimFrameSource {
+    fn format(&self) -> FrameFormat {
+        self.format
+    }
+
+    fn next_frame(&mut self) -> FrameFuture<'_> {
+        Box::pin(async move {
+            let f = self.camera.recv().await.ok_or(CameraError::Ended)?;
+            let received_t_ns = self.clock.now_ns();
+            let dropped_before = self.seq.observe(f.sequence);
+            self.frames += 1;
+            let (width, height) = f.image.dimensions();
+            Ok(Frame {
+                sequence: f.sequence,
+                device_ts_ns: f.device_ts_ns,
+                capture_t_ns: None,
+                received_t_ns,
+                dropped_before,
+                format: FrameFormat {
+                    width,
+                    height,
+                    ..self.format
+                },
+                data: f.image.into_raw(),
+            })
+        })
+    }
+
+    fn stats(&self) -> CaptureStats {
+        CaptureStats {
+            frames: self.frames,
+            dropped: self.seq.lost(),
+        }
+    }
+}

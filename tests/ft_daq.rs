@@ -1,0 +1,145 @@
+//! The DAQ gauge-stream front end against the simulated DAQ on a real pty: the calibration
+//! path (temperature compensation, F = M·(V − bias), tool transform) end to end.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use hardware_mocks::nano17::daq::{DaqMock, DaqMockConfig};
+use hardware_mocks::nano17::{MockStats, SensorModel};
+use rig::force::{FrontEndSettings, FtError, daq};
+use rig_core::clock::Clock;
+use rig_core::config::SaturationPolicy;
+use rig_core::ft::cal::Calibration;
+use rig_core::ft::transform::ToolTransform;
+use rig_core::ft::{NANO17_SI_25_RESOLUTION, SampleFlags};
+use rig_core::wrench::Wrench;
+
+fn truth(t_ns: u64) -> [f64; 6] {
+    if t_ns < 700_000_000 {
+        return [0.0; 6];
+    }
+    let k = (t_ns / 500_000_000) as f64;
+    [0.5 * k, -0.3 * k, -2.0 - k, 3.0 * k, -2.0 * k, 1.0]
+}
+
+fn near_step(t_ns: u64) -> bool {
+    let ms = (t_ns / 1_000_000) % 500;
+    !(40..=495).contains(&ms)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ft_daq_gauge_stream_converts_with_the_cal_file_and_counts_faults() {
+    let clock = Clock::system();
+    let cal = Calibration::load(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/nano17_useraxis.cal"
+    ))
+    .unwrap();
+    // The indenter tip 12 mm below the sensor, turned 30° about z.
+    let tool =
+        ToolTransform::from_angles([0.0, 0.0, -12.0], [0.0, 0.0, 30f64.to_radians()]).unwrap();
+    let mut model = SensorModel::nano17(4);
+    model.tool = tool.clone();
+    let mock = DaqMock::start(
+        DaqMockConfig::default(),
+        model,
+        Arc::new(|t| Wrench::from_array(truth(t))),
+        clock.clone(),
+    )
+    .unwrap();
+    let settings = FrontEndSettings {
+        tool,
+        max_loads: cal.max_loads,
+        saturation: SaturationPolicy::Flag,
+        calibration: Some(cal),
+        temperature_compensation: true,
+        counts_per_force: 1.0,
+        counts_per_torque: 1.0,
+        rate_hz: 1000.0,
+    };
+    let mut stream = daq::open(
+        &mock.path().display().to_string(),
+        921_600,
+        settings,
+        clock.clone(),
+    )
+    .await
+    .unwrap();
+    let tare = stream.tare(400).await.unwrap();
+    // The bias is in gauge volts: the simulated offsets (plus noise).
+    assert!((tare.raw.mean[2] - 0.2044).abs() < 0.01, "{tare:?}");
+    let mut max_err = [0.0f64; 6];
+    let mut compared = 0;
+    while clock.now_ns() < 2_700_000_000 {
+        let Ok(Some(s)) = clock.timeout(Duration::from_secs(1), stream.next()).await else {
+            panic!("stalled {:?}", stream.error());
+        };
+        if s.t_host_ns < 750_000_000 || near_step(s.t_host_ns) {
+            continue;
+        }
+        assert!(s.flags.is_clean(), "{}", s.flags);
+        let t = truth(s.t_host_ns);
+        for (i, v) in s.wrench.to_array().iter().enumerate() {
+            max_err[i] = max_err[i].max((v - t[i]).abs());
+        }
+        compared += 1;
+    }
+    println!("daq: compared {compared} samples, max |error| {max_err:?}");
+    assert!(compared > 1000);
+    // Noise σ is one resolution step per sensor axis; the 12 mm lever adds F × d to torques.
+    for i in 0..6 {
+        let tol = if i < 3 {
+            6.0 * NANO17_SI_25_RESOLUTION[i]
+        } else {
+            6.0 * (NANO17_SI_25_RESOLUTION[i] + 12.0 / 160.0)
+        };
+        assert!(max_err[i] < tol, "axis {i}: {} > {tol}", max_err[i]);
+    }
+
+    // Faults: garbage, checksum failures, truncated frames, saturation; all counted exactly.
+    let f = mock.faults();
+    f.inject_garbage(b"hello, DAQ");
+    f.corrupt_records(3);
+    clock.sleep(Duration::from_millis(50)).await;
+    f.truncate_records(2);
+    clock.sleep(Duration::from_millis(100)).await;
+    f.set_saturated(true);
+    clock.sleep(Duration::from_millis(30)).await;
+    f.set_saturated(false);
+    clock.sleep(Duration::from_millis(100)).await;
+    f.set_muted(true);
+    clock.sleep(Duration::from_millis(150)).await;
+    let mut gauge_sat = 0u64;
+    while let Some(s) = stream.try_next() {
+        if s.flags.contains(SampleFlags::GAUGE_SATURATED) {
+            gauge_sat += 1;
+        }
+    }
+    let st = stream.stats();
+    let ms = mock.stats();
+    println!("daq faults: {st:?}");
+    assert_eq!(st.samples, MockStats::get(&ms.sent));
+    assert_eq!(st.garbage, 10);
+    assert_eq!(st.checksum_errors, 3);
+    assert_eq!(st.truncated, 2);
+    assert_eq!(
+        st.lost, 5,
+        "corrupted and truncated frames show as sequence gaps"
+    );
+    assert!(
+        gauge_sat >= 10 && gauge_sat == st.saturated,
+        "{gauge_sat} {st:?}"
+    );
+
+    f.set_muted(false);
+    f.unplug();
+    let _ = clock
+        .timeout(Duration::from_secs(3), async {
+            while stream.next().await.is_some() {}
+        })
+        .await;
+    assert!(matches!(
+        stream.finish().await,
+        Err(FtError::PortClosed { .. })
+    ));
+}

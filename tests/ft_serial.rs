@@ -1,0 +1,207 @@
+//! The serial F/T controller front end against the simulated controller on a real pty.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use hardware_mocks::nano17::serial::{SerialControllerMock, SerialMockConfig};
+use hardware_mocks::nano17::{MockStats, SensorModel};
+use rig::force::serial::{SerialOptions, open};
+use rig::force::{FrontEndSettings, FtError};
+use rig_core::clock::Clock;
+use rig_core::config::SaturationPolicy;
+use rig_core::ft::serial::OutputMode;
+use rig_core::ft::transform::ToolTransform;
+use rig_core::ft::{NANO17_SI_25_MAX, NANO17_SI_25_RESOLUTION, SampleFlags};
+use rig_core::wrench::Wrench;
+
+/// Unloaded for the first 0.8 s (the tare), then a different load every second.
+fn truth(t_ns: u64) -> [f64; 6] {
+    if t_ns < 800_000_000 {
+        return [0.0; 6];
+    }
+    let k = (t_ns / 1_000_000_000) as f64;
+    [
+        1.5 * (k * 0.7).sin(),
+        -2.0 * (k * 0.3).cos(),
+        -3.0 - 1.2 * k,
+        20.0 * (k * 0.5).sin(),
+        -15.0 + 2.0 * k,
+        5.0 * (k * 1.1).cos(),
+    ]
+}
+
+/// Whether `t_ns` is close to a load change (where the host stamp and the sample time differ).
+fn near_step(t_ns: u64) -> bool {
+    let ms = (t_ns / 1_000_000) % 1000;
+    let since_tare = t_ns.abs_diff(800_000_000) < 60_000_000;
+    !(60..=990).contains(&ms) || since_tare
+}
+
+fn settings(rate_hz: f64) -> FrontEndSettings {
+    FrontEndSettings {
+        tool: ToolTransform::identity(),
+        max_loads: NANO17_SI_25_MAX,
+        saturation: SaturationPolicy::Flag,
+        calibration: None,
+        temperature_compensation: false,
+        counts_per_force: 320.0,
+        counts_per_torque: 64.0,
+        rate_hz,
+    }
+}
+
+fn get(a: &std::sync::atomic::AtomicU64) -> u64 {
+    MockStats::get(a)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ft_serial_binary_streams_10s_at_1khz_over_a_pty_with_zero_loss() {
+    let clock = Clock::system();
+    let mock = SerialControllerMock::start(
+        SerialMockConfig {
+            rate_hz: 1000.0,
+            ..SerialMockConfig::default()
+        },
+        SensorModel::nano17(1),
+        Arc::new(|t| Wrench::from_array(truth(t))),
+        clock.clone(),
+    )
+    .unwrap();
+    let port = mock.path().display().to_string();
+    let mut stream = open(
+        SerialOptions {
+            port,
+            baud: 921_600,
+            output: OutputMode::Binary,
+            device_bias: false,
+        },
+        settings(1000.0),
+        clock.clone(),
+    )
+    .await
+    .unwrap();
+    let tare = stream.tare(600).await.unwrap();
+    // The simulated sensor's offset is real: about 1.4 N on Fz before the tare.
+    assert!(tare.wrench.mean[2].abs() > 0.5, "{tare:?}");
+    let mut n = 0u64;
+    let mut max_err = [0.0f64; 6];
+    let mut last_seq = None;
+    while clock.now_ns() < 10_800_000_000 {
+        let Ok(Some(s)) = clock.timeout(Duration::from_secs(1), stream.next()).await else {
+            panic!("stream stalled: {:?} {:?}", stream.stats(), stream.error());
+        };
+        n += 1;
+        if let Some(p) = last_seq {
+            assert_eq!(s.device_seq, p + 1);
+        }
+        last_seq = Some(s.device_seq);
+        if s.t_host_ns < 900_000_000 || near_step(s.t_host_ns) {
+            continue;
+        }
+        assert!(s.flags.is_clean(), "{:?}", s.flags);
+        let w = s.wrench.to_array();
+        let t = truth(s.t_host_ns);
+        for i in 0..6 {
+            max_err[i] = max_err[i].max((w[i] - t[i]).abs());
+        }
+    }
+    mock.faults().set_muted(true);
+    clock.sleep(Duration::from_millis(200)).await;
+    while stream.try_next().is_some() {
+        n += 1;
+    }
+    let st = stream.stats();
+    let sent = get(&mock.stats().sent);
+    println!(
+        "serial binary: {sent} records sent, {} received in ~10.8 s; max |error| {max_err:?}",
+        st.samples
+    );
+    assert_eq!(st.samples, sent, "lost records: {st:?}");
+    assert!(sent >= 10_500, "rate below 1 kHz: {sent} records in 10.8 s");
+    assert_eq!(
+        st.garbage + st.truncated + st.checksum_errors + st.consumer_overflow,
+        0,
+        "{st:?}"
+    );
+    // Within the count resolution plus noise (σ = resolution) and the tare's standard error.
+    for i in 0..6 {
+        let res = if i < 3 { 1.0 / 320.0 } else { 1.0 / 64.0 };
+        let tol = res + 6.0 * NANO17_SI_25_RESOLUTION[i] + 4.0 * tare.wrench.std_error[i];
+        assert!(max_err[i] < tol, "axis {i}: {} > {tol}", max_err[i]);
+    }
+    let _ = n;
+    stream.finish().await.unwrap();
+    mock.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ft_serial_ascii_counts_garbage_truncation_saturation_and_reports_unplug() {
+    let clock = Clock::system();
+    let mock = SerialControllerMock::start(
+        SerialMockConfig {
+            rate_hz: 1000.0,
+            mode: OutputMode::Binary,
+            ..SerialMockConfig::default()
+        },
+        SensorModel::nano17(2),
+        Arc::new(|_t| Wrench::from_array([0.5, 0.0, -4.0, 0.0, 3.0, 0.0])),
+        clock.clone(),
+    )
+    .unwrap();
+    let mut stream = open(
+        SerialOptions {
+            port: mock.path().display().to_string(),
+            baud: 115_200,
+            output: OutputMode::Ascii,
+            device_bias: true,
+        },
+        settings(1000.0),
+        clock.clone(),
+    )
+    .await
+    .unwrap();
+    let drain = |stream: &mut rig::force::FtStream, flags: &mut Vec<SampleFlags>| {
+        while let Some(s) = stream.try_next() {
+            flags.push(s.flags);
+        }
+    };
+    let mut flags = Vec::new();
+    clock.sleep(Duration::from_millis(200)).await;
+    mock.faults().inject_garbage(b"\x01\x02#garbage~\r\n");
+    mock.faults().truncate_records(3);
+    clock.sleep(Duration::from_millis(200)).await;
+    mock.faults().set_saturated(true);
+    clock.sleep(Duration::from_millis(50)).await;
+    mock.faults().set_saturated(false);
+    clock.sleep(Duration::from_millis(200)).await;
+    mock.faults().set_muted(true);
+    clock.sleep(Duration::from_millis(150)).await;
+    drain(&mut stream, &mut flags);
+    let st = stream.stats();
+    let sent = get(&mock.stats().sent);
+    println!("serial ascii faults: sent {sent}, stats {st:?}");
+    assert_eq!(st.samples, sent, "every intact record arrives: {st:?}");
+    assert_eq!(st.truncated, 3);
+    assert_eq!(st.garbage, 1);
+    assert!(st.saturated >= 20 && st.saturated <= 80, "{st:?}");
+    assert_eq!(st.status_errors, st.saturated);
+    let sat = flags
+        .iter()
+        .filter(|f| f.contains(SampleFlags::DEVICE_STATUS) && f.contains(SampleFlags::SATURATED))
+        .count() as u64;
+    assert_eq!(sat, st.saturated);
+    // SB on start: the controller-side bias leaves only noise (|F| well below the offset).
+    // Unplug: the stream ends with a clear error, no panic.
+    mock.faults().set_muted(false);
+    mock.faults().unplug();
+    let ended = clock
+        .timeout(Duration::from_secs(3), async {
+            while stream.next().await.is_some() {}
+        })
+        .await;
+    assert!(ended.is_ok(), "stream did not end after unplug");
+    match stream.finish().await {
+        Err(FtError::PortClosed { port, .. }) => assert!(port.starts_with("/dev/")),
+        other => panic!("{other:?}"),
+    }
+}
