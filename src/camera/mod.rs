@@ -81,8 +81,8 @@ pub struct Frame {
 }
 
 impl Frame {
-    /// The frame as an RGB image (RGB and YUYV; MJPEG frames stay compressed — store them as
-    /// JPEG or decode elsewhere).
+    /// The frame as an RGB image (RGB8, YUYV, or MJPEG decoded; the decoded size must match
+    /// the negotiated format).
     pub fn to_rgb(&self) -> Result<image::RgbImage, CameraError> {
         let (w, h) = (self.format.width, self.format.height);
         let n = w as usize * h as usize;
@@ -102,9 +102,19 @@ impl Frame {
                 )
             }
             PixelFormat::Yuyv => yuyv_to_rgb(&self.data, w, h),
-            PixelFormat::Mjpeg => Err(CameraError::Unsupported(
-                "MJPEG frames are not decoded here; record them as JPEG".into(),
-            )),
+            PixelFormat::Mjpeg => {
+                let img = image::load_from_memory_with_format(&self.data, image::ImageFormat::Jpeg)
+                    .map_err(|e| CameraError::BadFrame(format!("MJPEG frame: {e}")))?
+                    .to_rgb8();
+                if img.dimensions() != (w, h) {
+                    return Err(CameraError::BadFrame(format!(
+                        "MJPEG frame decodes to {}×{}, but the negotiated format is {w}×{h}",
+                        img.width(),
+                        img.height()
+                    )));
+                }
+                Ok(img)
+            }
         }
     }
 }
@@ -154,8 +164,9 @@ pub enum CameraError {
     NoFormat { wanted: String, offered: String },
     #[error("frame has {got} bytes, expected at least {want}")]
     ShortFrame { got: usize, want: usize },
-    #[error("{0}")]
-    Unsupported(String),
+    /// A frame whose payload cannot be decoded (corrupt JPEG, wrong size); the stream goes on.
+    #[error("bad frame: {0}")]
+    BadFrame(String),
     #[error("the camera stream ended")]
     Ended,
 }
@@ -254,5 +265,55 @@ mod tests {
             assert_eq!(PixelFormat::from_fourcc(p.fourcc()), Some(p));
         }
         assert_eq!(PixelFormat::from_fourcc(*b"H264"), None);
+    }
+
+    fn mjpeg_frame(data: Vec<u8>, width: u32, height: u32) -> Frame {
+        Frame {
+            sequence: 0,
+            device_ts_ns: 0,
+            capture_t_ns: None,
+            received_t_ns: 0,
+            dropped_before: 0,
+            format: FrameFormat {
+                pixel: PixelFormat::Mjpeg,
+                width,
+                height,
+                fps: 30.0,
+            },
+            data,
+        }
+    }
+
+    #[test]
+    fn mjpeg_frames_decode_and_bad_ones_are_errors() {
+        // A smooth gradient, JPEG-encoded at high quality as a UVC camera would send it.
+        let src = image::RgbImage::from_fn(32, 16, |x, y| {
+            image::Rgb([(x * 8) as u8, (y * 16) as u8, 128])
+        });
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
+            .encode_image(&src)
+            .unwrap();
+        let got = mjpeg_frame(jpeg.clone(), 32, 16).to_rgb().unwrap();
+        // JPEG is lossy: a smooth image at quality 95 comes back within a few levels.
+        let worst = src
+            .pixels()
+            .zip(got.pixels())
+            .flat_map(|(a, b)| (0..3).map(move |c| a[c].abs_diff(b[c])))
+            .max()
+            .unwrap();
+        assert!(worst <= 8, "worst channel error {worst}");
+        assert!(matches!(
+            mjpeg_frame(jpeg.clone(), 64, 16).to_rgb(),
+            Err(CameraError::BadFrame(_))
+        ));
+        assert!(matches!(
+            mjpeg_frame(jpeg[..jpeg.len() / 3].to_vec(), 32, 16).to_rgb(),
+            Err(CameraError::BadFrame(_))
+        ));
+        assert!(matches!(
+            mjpeg_frame(vec![0xff, 0xd8, 1, 2, 3], 32, 16).to_rgb(),
+            Err(CameraError::BadFrame(_))
+        ));
     }
 }
