@@ -18,10 +18,9 @@ use std::sync::atomic::Ordering;
 use rig_core::clock::Clock;
 use rig_core::ft::daq::DaqFrame;
 use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 
 use super::pty::PtyMaster;
-use super::{Faults, MockStats, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
 
 /// Configuration of the simulated DAQ front end.
 #[derive(Debug, Clone)]
@@ -45,10 +44,7 @@ impl Default for DaqMockConfig {
 /// A running simulated DAQ front end.
 pub struct DaqMock {
     path: PathBuf,
-    faults: Arc<Faults>,
-    stats: Arc<MockStats>,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<()>>,
+    running: Running,
 }
 
 impl DaqMock {
@@ -61,53 +57,24 @@ impl DaqMock {
     ) -> io::Result<Self> {
         let pty = PtyMaster::open()?;
         let path = pty.path().to_owned();
-        let faults = Arc::new(Faults::default());
-        let stats = Arc::new(MockStats::default());
-        let (stop_tx, stop_rx) = oneshot::channel();
-        let task = tokio::spawn(run(
-            pty,
-            cfg,
-            model,
-            source,
-            clock,
-            faults.clone(),
-            stats.clone(),
-            stop_rx,
-        ));
-        Ok(Self {
-            path,
-            faults,
-            stats,
-            stop: Some(stop_tx),
-            task: Some(task),
-        })
+        let running = Running::spawn(|faults, stats, stop| {
+            run(pty, cfg, model, source, clock, faults, stats, stop)
+        });
+        Ok(Self { path, running })
     }
 
     pub fn path(&self) -> &Path {
         &self.path
     }
     pub fn faults(&self) -> &Arc<Faults> {
-        &self.faults
+        self.running.faults()
     }
     pub fn stats(&self) -> &Arc<MockStats> {
-        &self.stats
+        self.running.stats()
     }
 
-    pub async fn shutdown(mut self) {
-        if let Some(s) = self.stop.take() {
-            let _ = s.send(());
-        }
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-}
-
-impl Drop for DaqMock {
-    fn drop(&mut self) {
-        if let Some(t) = &self.task {
-            t.abort();
-        }
+    pub async fn shutdown(self) {
+        self.running.shutdown().await;
     }
 }
 

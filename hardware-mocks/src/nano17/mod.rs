@@ -34,6 +34,65 @@ use rig_core::ft::transform::ToolTransform;
 
 pub use crate::truth::{ConstantWrench, SharedWrenchSource, WrenchSource};
 
+/// The task of a running simulated front end, with its fault injector and counters. Shutdown
+/// is a graceful stop signal; dropping it aborts the task.
+pub(crate) struct Running {
+    faults: std::sync::Arc<Faults>,
+    stats: std::sync::Arc<MockStats>,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    task: Option<tokio::task::JoinHandle<()>>,
+}
+
+impl Running {
+    /// Spawn `run(faults, stats, stop)` on the current tokio runtime.
+    pub(crate) fn spawn<F, Fut>(run: F) -> Self
+    where
+        F: FnOnce(
+            std::sync::Arc<Faults>,
+            std::sync::Arc<MockStats>,
+            tokio::sync::oneshot::Receiver<()>,
+        ) -> Fut,
+        Fut: std::future::Future<Output = ()> + Send + 'static,
+    {
+        let faults = std::sync::Arc::new(Faults::default());
+        let stats = std::sync::Arc::new(MockStats::default());
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel();
+        let task = tokio::spawn(run(faults.clone(), stats.clone(), stop_rx));
+        Self {
+            faults,
+            stats,
+            stop: Some(stop_tx),
+            task: Some(task),
+        }
+    }
+
+    pub(crate) fn faults(&self) -> &std::sync::Arc<Faults> {
+        &self.faults
+    }
+
+    pub(crate) fn stats(&self) -> &std::sync::Arc<MockStats> {
+        &self.stats
+    }
+
+    /// Signal the task to stop and wait for it.
+    pub(crate) async fn shutdown(mut self) {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        if let Some(t) = self.task.take() {
+            let _ = t.await;
+        }
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        if let Some(t) = &self.task {
+            t.abort();
+        }
+    }
+}
+
 /// The simulated Nano17's calibration file (also shipped as a test file).
 pub const SIM_CAL_XML: &str = include_str!("../../../tests/data/nano17_useraxis.cal");
 

@@ -21,9 +21,8 @@ use rig_core::clock::Clock;
 use rig_core::ft::netft::{RdtCommand, RdtRecord, RdtRequest, STATUS_ERROR};
 use tokio::net::UdpSocket;
 use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 
-use super::{Faults, MockStats, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
 
 /// Status bits of a record taken while a gauge is saturated (bit 31 "error" plus the mock's
 /// saturation bit 16).
@@ -58,10 +57,7 @@ impl Default for NetFtMockConfig {
 /// A running simulated Net F/T.
 pub struct NetFtMock {
     addr: SocketAddr,
-    faults: Arc<Faults>,
-    stats: Arc<MockStats>,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<()>>,
+    running: Running,
 }
 
 impl NetFtMock {
@@ -74,53 +70,24 @@ impl NetFtMock {
     ) -> io::Result<Self> {
         let sock = UdpSocket::bind(cfg.bind).await?;
         let addr = sock.local_addr()?;
-        let faults = Arc::new(Faults::default());
-        let stats = Arc::new(MockStats::default());
-        let (stop_tx, stop_rx) = oneshot::channel();
-        let task = tokio::spawn(run(
-            sock,
-            cfg,
-            model,
-            source,
-            clock,
-            faults.clone(),
-            stats.clone(),
-            stop_rx,
-        ));
-        Ok(Self {
-            addr,
-            faults,
-            stats,
-            stop: Some(stop_tx),
-            task: Some(task),
-        })
+        let running = Running::spawn(|faults, stats, stop| {
+            run(sock, cfg, model, source, clock, faults, stats, stop)
+        });
+        Ok(Self { addr, running })
     }
 
     pub fn addr(&self) -> SocketAddr {
         self.addr
     }
     pub fn faults(&self) -> &Arc<Faults> {
-        &self.faults
+        self.running.faults()
     }
     pub fn stats(&self) -> &Arc<MockStats> {
-        &self.stats
+        self.running.stats()
     }
 
-    pub async fn shutdown(mut self) {
-        if let Some(s) = self.stop.take() {
-            let _ = s.send(());
-        }
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-}
-
-impl Drop for NetFtMock {
-    fn drop(&mut self) {
-        if let Some(t) = &self.task {
-            t.abort();
-        }
+    pub async fn shutdown(self) {
+        self.running.shutdown().await;
     }
 }
 

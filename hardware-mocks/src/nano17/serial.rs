@@ -18,10 +18,9 @@ use std::sync::atomic::Ordering;
 use rig_core::clock::Clock;
 use rig_core::ft::serial::{Command, CountsRecord, OutputMode};
 use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 
 use super::pty::PtyMaster;
-use super::{Faults, MockStats, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
 
 /// Status word of a record taken while a gauge is saturated (the mock's choice of bit).
 pub const STATUS_SATURATED: u32 = 0x0001;
@@ -56,10 +55,7 @@ impl Default for SerialMockConfig {
 /// A running simulated controller.
 pub struct SerialControllerMock {
     path: PathBuf,
-    faults: Arc<Faults>,
-    stats: Arc<MockStats>,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<()>>,
+    running: Running,
 }
 
 impl SerialControllerMock {
@@ -72,26 +68,10 @@ impl SerialControllerMock {
     ) -> io::Result<Self> {
         let pty = PtyMaster::open()?;
         let path = pty.path().to_owned();
-        let faults = Arc::new(Faults::default());
-        let stats = Arc::new(MockStats::default());
-        let (stop_tx, stop_rx) = oneshot::channel();
-        let task = tokio::spawn(run(
-            pty,
-            cfg,
-            model,
-            source,
-            clock,
-            faults.clone(),
-            stats.clone(),
-            stop_rx,
-        ));
-        Ok(Self {
-            path,
-            faults,
-            stats,
-            stop: Some(stop_tx),
-            task: Some(task),
-        })
+        let running = Running::spawn(|faults, stats, stop| {
+            run(pty, cfg, model, source, clock, faults, stats, stop)
+        });
+        Ok(Self { path, running })
     }
 
     /// The pty path the rig opens.
@@ -99,28 +79,15 @@ impl SerialControllerMock {
         &self.path
     }
     pub fn faults(&self) -> &Arc<Faults> {
-        &self.faults
+        self.running.faults()
     }
     pub fn stats(&self) -> &Arc<MockStats> {
-        &self.stats
+        self.running.stats()
     }
 
     /// Stops the controller and closes the pty.
-    pub async fn shutdown(mut self) {
-        if let Some(s) = self.stop.take() {
-            let _ = s.send(());
-        }
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-}
-
-impl Drop for SerialControllerMock {
-    fn drop(&mut self) {
-        if let Some(t) = &self.task {
-            t.abort();
-        }
+    pub async fn shutdown(self) {
+        self.running.shutdown().await;
     }
 }
 
