@@ -223,21 +223,25 @@ fn attr<'a>(node: roxmltree::Node<'a, '_>, name: &str) -> Result<&'a str, CalErr
         .ok_or_else(|| elem_err(describe(node), format!("missing attribute `{name}`")))
 }
 
-fn attr_f64(node: roxmltree::Node, name: &str) -> Result<f64, CalError> {
-    let s = attr(node, name)?;
-    let v: f64 = s.trim().parse().map_err(|_| {
+/// `text` as a finite number, or an error naming the element and attribute.
+fn finite_number(node: roxmltree::Node, name: &str, text: &str) -> Result<f64, CalError> {
+    let v: f64 = text.trim().parse().map_err(|_| {
         elem_err(
             describe(node),
-            format!("attribute `{name}` = {s:?} is not a number"),
+            format!("attribute `{name}`: {text:?} is not a number"),
         )
     })?;
     if !v.is_finite() {
         return Err(elem_err(
             describe(node),
-            format!("attribute `{name}` is not finite"),
+            format!("attribute `{name}`: {text:?} is not finite"),
         ));
     }
     Ok(v)
+}
+
+fn attr_f64(node: roxmltree::Node, name: &str) -> Result<f64, CalError> {
+    finite_number(node, name, attr(node, name)?)
 }
 
 fn attr_f64_or(node: roxmltree::Node, name: &str, default: f64) -> Result<f64, CalError> {
@@ -256,18 +260,7 @@ fn attr_values6(node: roxmltree::Node, name: &str) -> Result<[f64; 6], CalError>
         .split(|c: char| c.is_whitespace() || c == ',')
         .filter(|t| !t.is_empty())
     {
-        let v: f64 = tok.parse().map_err(|_| {
-            elem_err(
-                describe(node),
-                format!("attribute `{name}`: {tok:?} is not a number"),
-            )
-        })?;
-        if !v.is_finite() {
-            return Err(elem_err(
-                describe(node),
-                format!("attribute `{name}`: {tok:?} is not finite"),
-            ));
-        }
+        let v = finite_number(node, name, tok)?;
         if n < 6 {
             out[n] = v;
         }
