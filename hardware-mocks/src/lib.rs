@@ -17,6 +17,7 @@
 
 pub mod camera;
 pub mod nano17;
+pub mod rig_sim;
 pub mod sim;
 pub mod truth;
 pub mod ur5e;

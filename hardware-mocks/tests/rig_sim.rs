@@ -1,0 +1,412 @@
+//! The shared scene of the simulated rig: the UR5e's TCP presses a sphere into the gel, the
+//! contact physics gives the force (read back through the Net F/T mock over UDP) and the image.
+//! Manual clock: every step of time is the test's.
+
+mod common;
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use common::{RawClient, eventually};
+use hardware_mocks::camera::SimCameraConfig;
+use hardware_mocks::nano17::MockStats;
+use hardware_mocks::rig_sim::{
+    ContactPhysics, PhysicsConfig, SimRig, SimRigOptions, indenter_pose, pose_above_surface,
+    wrench_at_tip,
+};
+use hardware_mocks::sim::{self, Scene};
+use hardware_mocks::truth::WrenchSource;
+use hardware_mocks::ur5e::Ur5e;
+use rig_core::clock::Clock;
+use rig_core::config::RigConfig;
+use rig_core::control::{self, CommandKind, robot_mode, runtime_state};
+use rig_core::ft::netft::{RdtCommand, RdtRecord, RdtRequest};
+use rig_core::indenter::Indenter;
+use rig_core::pose::Pose;
+use rig_core::rtde::Value;
+use rig_core::wrench::Wrench;
+use tokio::io::AsyncWriteExt;
+use tokio::net::{TcpStream, UdpSocket};
+
+const DEPTH_MM: f64 = 0.5;
+
+fn sphere() -> Arc<Indenter> {
+    Arc::new(Indenter::builtin("sphere").unwrap())
+}
+
+fn program() -> String {
+    format!(
+        "def {}():\n  {}\n  while True:\n    sync()\n  end\nend\n",
+        control::PROGRAM_NAME,
+        control::PROGRAM_MARKER
+    )
+}
+
+async fn upload_program(ur: &Ur5e) {
+    let mut s = TcpStream::connect(ur.script_addr()).await.unwrap();
+    s.write_all(program().as_bytes()).await.unwrap();
+    s.shutdown().await.unwrap();
+    eventually("the program to play", || {
+        ur.snapshot().runtime_state == runtime_state::PLAYING
+    })
+    .await;
+}
+
+/// Writes a moveL into the rig program's command registers.
+async fn movel(ur: &Ur5e, seq: i32, target: Pose, v: f64, a: f64) -> RawClient {
+    let mut names = vec![
+        control::input_int(control::IN_CMD_SEQ),
+        control::input_int(control::IN_CMD_KIND),
+    ];
+    names.extend((0..6).map(|i| control::input_double(control::IN_TARGET_POSE + i)));
+    names.push(control::input_double(control::IN_SPEED));
+    names.push(control::input_double(control::IN_ACCEL));
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let mut c = RawClient::connect(ur.rtde_addr()).await;
+    c.handshake(2).await;
+    let (id, _) = c.setup_inputs(&refs).await;
+    let mut vals = vec![Value::Int32(seq), Value::Int32(CommandKind::MoveL as i32)];
+    vals.extend(target.to_array().map(Value::Double));
+    vals.push(Value::Double(v));
+    vals.push(Value::Double(a));
+    c.write_inputs(id, &vals).await;
+    eventually("the command registers to be written", || {
+        ur.snapshot().input_int_registers[control::IN_CMD_SEQ as usize] == seq
+    })
+    .await;
+    c
+}
+
+/// A Net F/T client on the RDT codec: collects every record it receives.
+struct NetFtClient {
+    sock: Arc<UdpSocket>,
+    records: Arc<Mutex<Vec<RdtRecord>>>,
+    /// Records already taken by [`NetFtClient::drain`].
+    taken: std::sync::atomic::AtomicU64,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl NetFtClient {
+    async fn start(addr: std::net::SocketAddr) -> Self {
+        let sock = Arc::new(UdpSocket::bind("127.0.0.1:0").await.unwrap());
+        sock.connect(addr).await.unwrap();
+        let records = Arc::new(Mutex::new(Vec::new()));
+        let (s, r) = (sock.clone(), records.clone());
+        let task = tokio::spawn(async move {
+            let mut buf = [0u8; 1500];
+            while let Ok(n) = s.recv(&mut buf).await {
+                if let Ok(recs) = RdtRecord::decode_datagram(&buf[..n]) {
+                    r.lock().unwrap().extend(recs);
+                }
+            }
+        });
+        let req = RdtRequest {
+            command: RdtCommand::StartRealtime,
+            sample_count: 0,
+        };
+        sock.send(&req.encode()).await.unwrap();
+        Self {
+            sock,
+            records,
+            taken: Default::default(),
+            task,
+        }
+    }
+
+    /// Records received since the stream started.
+    fn received(&self) -> u64 {
+        self.records.lock().unwrap().len() as u64
+            + self.taken.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Waits until every record the mock sent has arrived, then takes them.
+    async fn drain(&self, stats: &MockStats) -> Vec<RdtRecord> {
+        eventually("every sent record to arrive", || {
+            self.received() == MockStats::get(&stats.sent)
+        })
+        .await;
+        let recs = std::mem::take(&mut *self.records.lock().unwrap());
+        self.taken
+            .fetch_add(recs.len() as u64, std::sync::atomic::Ordering::Relaxed);
+        recs
+    }
+
+    fn mean(records: &[RdtRecord]) -> [f64; 6] {
+        let mut m = [0.0; 6];
+        for r in records {
+            let w = r.to_wrench(1e6, 1e3);
+            for k in 0..6 {
+                m[k] += w[k] / records.len() as f64;
+            }
+        }
+        m
+    }
+}
+
+impl Drop for NetFtClient {
+    fn drop(&mut self) {
+        self.task.abort();
+        let _ = &self.sock;
+    }
+}
+
+fn force_err(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    d / (b[0].powi(2) + b[1].powi(2) + b[2].powi(2)).sqrt()
+}
+
+/// The same static pose, simulated statelessly with the physics' effects.
+fn static_reference(cfg: &RigConfig, physics: &PhysicsConfig) -> sim::SimOutput {
+    let mut scene = Scene::new(
+        cfg.elastomer.clone(),
+        sphere(),
+        sim::IndenterPose {
+            contact_mm: [0.0, 0.0],
+            depth_mm: DEPTH_MM,
+            shear_mm: [0.0, 0.0],
+        },
+    );
+    scene.effects = physics.effects(false);
+    sim::simulate(&scene).unwrap()
+}
+
+#[test]
+fn tcp_pose_maps_to_the_indenter_pose_in_the_surface_frame() {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    let p = indenter_pose(&frame, &pose_above_surface(&frame, 1.5, -2.0, -0.6));
+    assert!((p.contact_mm[0] - 1.5).abs() < 1e-9, "{p:?}");
+    assert!((p.contact_mm[1] + 2.0).abs() < 1e-9, "{p:?}");
+    assert!((p.depth_mm - 0.6).abs() < 1e-9, "{p:?}");
+    assert_eq!(p.shear_mm, [0.0, 0.0]);
+    // A tilted, offset surface frame: the same relation holds in its own axes.
+    let tilted = Pose::new(0.4, 0.05, 0.2, 0.1, -0.2, 0.3);
+    let p = indenter_pose(&tilted, &pose_above_surface(&tilted, -1.0, 0.5, 2.0));
+    assert!((p.contact_mm[0] + 1.0).abs() < 1e-9, "{p:?}");
+    assert!((p.contact_mm[1] - 0.5).abs() < 1e-9, "{p:?}");
+    assert!((p.depth_mm + 2.0).abs() < 1e-9, "{p:?}");
+    // Torque moved from the surface contact point down to the tip.
+    let w = wrench_at_tip(
+        &Wrench {
+            force_n: [1.0, 2.0, -3.0],
+            torque_nmm: [0.1, 0.2, 0.3],
+        },
+        0.5,
+    );
+    assert_eq!(w.torque_nmm, [0.1 - 0.5 * 2.0, 0.2 + 0.5 * 1.0, 0.3]);
+}
+
+#[test]
+fn wrench_at_interpolates_between_physics_steps_and_clamps_at_the_ends() {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    let physics = ContactPhysics::new(
+        frame,
+        cfg.elastomer.clone(),
+        sphere(),
+        PhysicsConfig::default(),
+        false,
+    )
+    .unwrap();
+    assert_eq!(physics.wrench_at(123), Wrench::default());
+    let above = pose_above_surface(&frame, 0.0, 0.0, 1.0);
+    let pressed = pose_above_surface(&frame, 0.0, 0.0, -DEPTH_MM);
+    assert_eq!(
+        physics.update(1_000_000, &above).unwrap(),
+        Wrench::default()
+    );
+    let w = physics.update(5_000_000, &pressed).unwrap();
+    assert!(w.force_n[2] < 0.0, "{w:?}");
+    let mid = physics.wrench_at(3_000_000);
+    for k in 0..3 {
+        assert!(
+            (mid.force_n[k] - w.force_n[k] / 2.0).abs() < 1e-12,
+            "{mid:?}"
+        );
+    }
+    assert_eq!(physics.wrench_at(0), Wrench::default());
+    assert_eq!(physics.wrench_at(9_000_000), w);
+    let s = physics.stats();
+    assert_eq!((s.steps, s.contact_steps, s.errors), (2, 1, 0));
+    // Too deep for the 3 mm gel: refused, the last wrench held.
+    let too_deep = pose_above_surface(&frame, 0.0, 0.0, -3.5);
+    assert!(physics.update(7_000_000, &too_deep).is_err());
+    assert_eq!(physics.wrench_at(7_000_000), w);
+    assert_eq!(physics.stats().errors, 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    let (clock, h) = Clock::manual();
+    let opts = SimRigOptions {
+        initial_robot_mode: robot_mode::RUNNING,
+        netft_rate_hz: Some(1000.0),
+        camera: Some(SimCameraConfig {
+            queue_len: 64,
+            ..SimCameraConfig::ideal(25.0)
+        }),
+        ..SimRigOptions::default()
+    };
+    let physics_cfg = opts.physics.clone();
+    let mut rig = SimRig::start(&cfg, sphere(), clock.clone(), opts)
+        .await
+        .unwrap();
+    let home = rig.ur5e().snapshot().actual_tcp_pose;
+    assert!((indenter_pose(&frame, &home).depth_mm + 2.0).abs() < 1e-9);
+    upload_program(rig.ur5e()).await;
+    let netft = NetFtClient::start(rig.netft_addr()).await;
+    let stats = rig.netft().stats().clone();
+    eventually("the stream request", || {
+        MockStats::get(&stats.commands) == 1
+    })
+    .await;
+
+    // Above the surface: 0.2 s of clock time, zero force; the F/T's own offset is tared here.
+    rig.ur5e().step_ticks(&h, 100).await;
+    let t_above = rig.ur5e().snapshot().t_ns;
+    eventually("the physics to catch up", || {
+        rig.physics()
+            .latest()
+            .is_some_and(|(t, _)| t + 4_000_000 >= t_above)
+    })
+    .await;
+    assert_eq!(rig.physics().wrench_at(t_above), Wrench::default());
+    assert_eq!(rig.physics().wrench_at(t_above / 2), Wrench::default());
+    let tare_recs = netft.drain(&stats).await;
+    assert!(tare_recs.len() >= 150, "{}", tare_recs.len());
+    let tare = NetFtClient::mean(&tare_recs[20..]);
+    eventually("a camera frame out of contact", || {
+        rig.camera().unwrap().stats().delivered >= 4
+    })
+    .await;
+    let mut flat_frame = None;
+    while let Some(f) = rig.camera().unwrap().try_recv() {
+        flat_frame = Some(f);
+    }
+    let flat_frame = flat_frame.unwrap();
+
+    // Down 2.5 mm at 10 mm/s, 0.1 m/s²: a 0.35 s trapezoid ending 0.5 mm deep.
+    let target = pose_above_surface(&frame, 0.0, 0.0, -DEPTH_MM);
+    let _client = movel(rig.ur5e(), 1, target, 0.01, 0.1).await;
+    let mut ticks = 0;
+    let mut fz_prev = 0.0;
+    loop {
+        rig.ur5e().step_ticks(&h, 1).await;
+        ticks += 1;
+        let s = rig.ur5e().snapshot();
+        if ticks % 10 == 0 {
+            eventually("the physics to catch up", || {
+                rig.physics()
+                    .latest()
+                    .is_some_and(|(t, _)| t + 4_000_000 >= s.t_ns)
+            })
+            .await;
+            let fz = rig.physics().wrench_at(s.t_ns - 4_000_000).force_n[2];
+            assert!(
+                fz <= fz_prev + 1e-3,
+                "pressing deeper lowers Fz: {fz} after {fz_prev}"
+            );
+            fz_prev = fz;
+        }
+        if s.output_int_registers[control::OUT_DONE_SEQ as usize] == 1 {
+            break;
+        }
+        assert!(ticks < 400, "the move did not finish");
+    }
+    let depth = indenter_pose(&frame, &rig.ur5e().snapshot().actual_tcp_pose).depth_mm;
+    assert!((depth - DEPTH_MM).abs() < 1e-9, "{depth}");
+
+    // At rest 0.5 mm deep: settle 40 ms, then read 0.2 s.
+    rig.ur5e().step_ticks(&h, 20).await;
+    netft.drain(&stats).await;
+    rig.ur5e().step_ticks(&h, 100).await;
+    let t_rest = rig.ur5e().snapshot().t_ns;
+    eventually("the physics to catch up", || {
+        rig.physics()
+            .latest()
+            .is_some_and(|(t, _)| t + 4_000_000 >= t_rest)
+    })
+    .await;
+    let pressed = rig.physics().wrench_at(t_rest - 4_000_000);
+    let reference = static_reference(&cfg, &physics_cfg);
+    let default_cell = sim::simulate(&Scene::new(
+        cfg.elastomer.clone(),
+        sphere(),
+        sim::IndenterPose {
+            contact_mm: [0.0, 0.0],
+            depth_mm: DEPTH_MM,
+            shear_mm: [0.0, 0.0],
+        },
+    ))
+    .unwrap();
+    println!(
+        "physics {:?}\nstatic (same effects) {:?}\nstatic (default layer grid) {:?}",
+        pressed, reference.wrench, default_cell.wrench
+    );
+    assert!(
+        pressed.force_n[2] < -0.05,
+        "pressing gives Fz < 0: {pressed:?}"
+    );
+    let e_same = force_err(pressed.force_n, reference.wrench.force_n);
+    assert!(e_same < 0.01, "physics vs static, same grid: {e_same}");
+    let e_default = force_err(pressed.force_n, default_cell.wrench.force_n);
+    assert!(
+        e_default < 0.05,
+        "physics vs static, default grid: {e_default}"
+    );
+
+    let recs = netft.drain(&stats).await;
+    assert!(recs.len() >= 150, "{}", recs.len());
+    let mean = NetFtClient::mean(&recs[20..]);
+    let read = [mean[0] - tare[0], mean[1] - tare[1], mean[2] - tare[2]];
+    println!("Net F/T (tared) {read:?} from {} records", recs.len());
+    let e_ft = force_err(read, pressed.force_n);
+    assert!(
+        e_ft < 0.03,
+        "Net F/T vs physics: {e_ft} ({read:?} vs {pressed:?})"
+    );
+    assert!(read[2] < 0.0);
+
+    // The camera sees the contact: the newest frame differs from the flat one.
+    eventually("camera frames in contact", || {
+        rig.camera().unwrap().stats().delivered >= 8
+    })
+    .await;
+    let mut last = None;
+    while let Some(f) = rig.camera().unwrap().try_recv() {
+        last = Some(f);
+    }
+    let last = last.unwrap();
+    assert!(last.capture_t_ns > t_rest - 200_000_000);
+    let diff: u64 = flat_frame
+        .image
+        .as_raw()
+        .iter()
+        .zip(last.image.as_raw())
+        .map(|(a, b)| u64::from(a.abs_diff(*b)))
+        .sum();
+    assert!(diff > 1000, "the pressed frame looks flat (diff {diff})");
+    rig.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sim_rig_runs_on_a_scaled_clock() {
+    let cfg = RigConfig::sim_source();
+    let clock = Clock::scaled(5.0);
+    let rig = SimRig::start(
+        &cfg,
+        sphere(),
+        clock.clone(),
+        SimRigOptions::for_config(&cfg),
+    )
+    .await
+    .unwrap();
+    clock.sleep(Duration::from_millis(200)).await;
+    let s = rig.physics().stats();
+    assert!(s.steps >= 10, "{s:?}");
+    assert_eq!(s.contact_steps, 0);
+    assert_eq!(rig.physics().wrench_at(clock.now_ns()), Wrench::default());
+    rig.shutdown().await;
+}
