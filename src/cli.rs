@@ -63,6 +63,13 @@ pub struct RunArgs {
     /// Rig config (TOML). Default: ./rig.toml if present, else the built-in simulated rig.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+    /// Output directory of the recording (one MCAP file per trajectory and manifest.json).
+    /// Default: runs/<indenter>-<sensor id>.
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Continue the recording in the output directory: skip complete trajectories, redo the rest.
+    #[arg(long)]
+    pub resume: bool,
     /// Run only the first N trajectories of the plan.
     #[arg(long, value_name = "N")]
     pub limit: Option<usize>,
@@ -106,7 +113,15 @@ fn run_command(args: &RunArgs) -> anyhow::Result<()> {
     let loaded = resolve_config(args.config.as_deref())?;
     let indenter = Indenter::load(&args.indenter)?;
     // Refuse an unsafe plan before anything starts, with the same message as `rig plan`.
-    Plan::build(&loaded.config, &indenter).map_err(|e| plan_error(e, &loaded.source))?;
+    let plan = Plan::build(&loaded.config, &indenter).map_err(|e| plan_error(e, &loaded.source))?;
+    let out = match &args.out {
+        Some(dir) => dir.clone(),
+        None => {
+            let dir = Path::new("runs").join(format!("{}-{}", plan.indenter, plan.sensor_id));
+            eprintln!("recording into {} (no --out given)", dir.display());
+            dir
+        }
+    };
     if loaded.config.robot.simulated {
         eprintln!(
             "running on the simulated rig (simulated UR5e over loopback RTDE, clock ×{})",
@@ -117,12 +132,64 @@ fn run_command(args: &RunArgs) -> anyhow::Result<()> {
         limit: args.limit,
         speed_factor: args.speed_factor,
         progress: io::stderr().is_terminal(),
+        out: out.clone(),
+        resume: args.resume,
     };
     let runtime = tokio::runtime::Runtime::new()?;
     let summary = runtime.block_on(crate::run::run(&loaded.config, &indenter, &opts))?;
     print!("{}", summary.report());
-    if let Some((id, why)) = summary.failure {
-        anyhow::bail!("run stopped at trajectory {id}: {why}");
+    let report = crate::dataset::check(&out);
+    if report.ok() {
+        println!(
+            "dataset check: OK, {} complete trajectories in {}",
+            report.complete,
+            out.display()
+        );
+    } else {
+        println!(
+            "dataset check: NOT complete: {} complete, {} with problems{}",
+            report.complete,
+            report.problems,
+            report
+                .manifest_error
+                .as_ref()
+                .map(|e| format!(" ({e})"))
+                .unwrap_or_default()
+        );
+        for t in report
+            .trajectories
+            .iter()
+            .filter(|t| t.verdict != crate::dataset::Verdict::Complete)
+            .take(5)
+        {
+            println!(
+                "  {}: {}",
+                t.id,
+                t.reason.as_deref().unwrap_or("not complete")
+            );
+        }
+    }
+    if let Some((id, why)) = &summary.failure {
+        let what = if summary.not_attempted > 0 {
+            format!("run stopped at trajectory {id}: {why}")
+        } else {
+            format!(
+                "{} trajectories failed, the first {id}: {why}",
+                summary.failed.len()
+            )
+        };
+        anyhow::bail!(
+            "{what}\nfix the cause, then continue with the same command plus --resume (--out {})",
+            out.display()
+        );
+    }
+    if !report.ok() {
+        anyhow::bail!(
+            "the dataset in {} is not complete; `rig dataset check {}` shows why, and the same \
+             command plus --resume records what is missing",
+            out.display(),
+            out.display()
+        );
     }
     Ok(())
 }
