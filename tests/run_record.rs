@@ -26,7 +26,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
 
 /// The built-in simulated rig's config, as shipped (the run scales its watchdog to the
 /// simulated clock's speed, so ×20 needs no relaxed settings).
-fn config(_dir: &Path) -> PathBuf {
+fn config() -> PathBuf {
     PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/rig-configs/sim-source.toml"
@@ -113,7 +113,7 @@ fn assert_complete(dir: &Path, n: usize) -> Vec<String> {
 fn a_run_records_one_complete_file_per_trajectory() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = config(tmp.path());
+    let cfg = config();
     let out_dir = tmp.path().join("run");
     let out = run_ok(&mut rig_run(&cfg, &out_dir, 3, &[]));
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -127,7 +127,7 @@ fn a_run_records_one_complete_file_per_trajectory() {
 fn a_killed_run_resumes_into_the_same_dataset() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = config(tmp.path());
+    let cfg = config();
 
     // The reference: an uninterrupted run.
     let reference = tmp.path().join("reference");
@@ -226,7 +226,7 @@ fn a_killed_run_resumes_into_the_same_dataset() {
 fn an_existing_recording_is_only_continued_with_resume() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = config(tmp.path());
+    let cfg = config();
     let out_dir = tmp.path().join("run");
     run_ok(&mut rig_run(&cfg, &out_dir, 1, &[]));
     let before = final_files(&out_dir);
@@ -246,7 +246,7 @@ fn an_existing_recording_is_only_continued_with_resume() {
 fn resume_refuses_another_indenter_or_config() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = config(tmp.path());
+    let cfg = config();
     let out_dir = tmp.path().join("run");
     run_ok(&mut rig_run(&cfg, &out_dir, 1, &[]));
 
@@ -291,7 +291,7 @@ fn resume_refuses_another_indenter_or_config() {
 fn the_default_output_is_named_after_indenter_and_sensor() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = config(tmp.path());
+    let cfg = config();
     let out = run_ok(
         Command::new(env!("CARGO_BIN_EXE_rig"))
             .args(["run", "--indenter", "cone", "--config"])
