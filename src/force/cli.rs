@@ -294,9 +294,7 @@ fn live(a: &LiveArgs, mode: Mode) -> anyhow::Result<()> {
             if let Err(e) = &result {
                 problems.push(e.to_string());
             }
-            println!(
-                "{n} samples in {elapsed_s:.2} s: {rate:.0} Hz; {flagged} flagged; counters {st:?}"
-            );
+            println!("{n} samples in {elapsed_s:.2} s: {rate:.0} Hz; {flagged} flagged; {st}");
             if problems.is_empty() {
                 println!("F/T check passed");
                 return Ok(());

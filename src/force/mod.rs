@@ -138,6 +138,27 @@ pub struct FtStatsSnapshot {
     pub consumer_overflow: u64,
 }
 
+impl std::fmt::Display for FtStatsSnapshot {
+    /// `lost 0, reordered 0, …`, for operator read-outs.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "lost {}, reordered {}, duplicates {}, garbage {}, truncated {}, checksum errors {}, \
+             saturated {}, status errors {}, dropped saturated {}, consumer overflow {}",
+            self.lost,
+            self.reordered,
+            self.duplicates,
+            self.garbage,
+            self.truncated,
+            self.checksum_errors,
+            self.saturated,
+            self.status_errors,
+            self.dropped_saturated,
+            self.consumer_overflow
+        )
+    }
+}
+
 impl FtStats {
     pub fn snapshot(&self) -> FtStatsSnapshot {
         let g = |a: &AtomicU64| a.load(Ordering::Acquire);
