@@ -162,3 +162,20 @@ pub fn saturation_mask(values: &[f64; 6], max: &[f64; 6]) -> u8 {
     }
     mask
 }
+
+/// F/T counts to `[Fx, Fy, Fz]` N and `[Tx, Ty, Tz]` N·mm: forces divide by counts per force,
+/// torques by counts per torque (ATI: newtons = counts / CPF, N·mm = counts / CPT).
+pub fn counts_to_wrench(
+    counts: &[i32; 6],
+    counts_per_force: f64,
+    counts_per_torque: f64,
+) -> [f64; 6] {
+    std::array::from_fn(|i| {
+        let k = if i < 3 {
+            counts_per_force
+        } else {
+            counts_per_torque
+        };
+        f64::from(counts[i]) / k
+    })
+}

@@ -132,18 +132,8 @@ pub struct CountsRecord {
 
 impl CountsRecord {
     /// N and N·mm from counts.
-    #[allow(clippy::needless_range_loop)] // axis i picks its unit
     pub fn to_wrench(&self, counts_per_force: f64, counts_per_torque: f64) -> [f64; 6] {
-        let mut w = [0.0; 6];
-        for i in 0..6 {
-            let k = if i < 3 {
-                counts_per_force
-            } else {
-                counts_per_torque
-            };
-            w[i] = f64::from(self.counts[i]) / k;
-        }
-        w
+        super::counts_to_wrench(&self.counts, counts_per_force, counts_per_torque)
     }
 
     /// The ASCII line (CR LF included), as the controller prints it.
