@@ -76,6 +76,22 @@ pub struct RunArgs {
     /// Simulated rig only: run the simulated clock this many times faster than real time.
     #[arg(long, value_name = "F", default_value_t = 10.0)]
     pub speed_factor: f64,
+    /// Simulated rig only: how the simulated Nano17 is connected (a Net F/T on UDP, or an F/T
+    /// controller on a serial pty).
+    #[arg(long, value_enum, value_name = "FRONT_END", default_value = "netft")]
+    pub sim_ft: SimFt,
+    /// Simulated rig only: inject a fault (a drill for operators, and the fault tests):
+    /// KIND@TRAJECTORY/STAGE[+MS], KIND one of protective-stop, rtde-drop, ft-unplug,
+    /// camera-stall; MS is clock time after the stage starts. Repeatable.
+    #[arg(long, value_name = "FAULT")]
+    pub sim_fault: Vec<crate::run::SimFault>,
+}
+
+/// The simulated Nano17's front end (`rig run --sim-ft`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SimFt {
+    Netft,
+    Serial,
 }
 
 /// Arguments of `rig plan`.
@@ -132,8 +148,13 @@ fn run_command(args: &RunArgs) -> anyhow::Result<()> {
         limit: args.limit,
         speed_factor: args.speed_factor,
         progress: io::stderr().is_terminal(),
-        out: out.clone(),
         resume: args.resume,
+        sim_faults: args.sim_fault.clone(),
+        sim_ft: match args.sim_ft {
+            SimFt::Netft => hardware_mocks::rig_sim::SimFtFrontEnd::NetFt,
+            SimFt::Serial => hardware_mocks::rig_sim::SimFtFrontEnd::Serial,
+        },
+        ..crate::run::RunOptions::new(out.clone())
     };
     let runtime = tokio::runtime::Runtime::new()?;
     let summary = runtime.block_on(crate::run::run(&loaded.config, &indenter, &opts))?;

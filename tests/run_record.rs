@@ -105,6 +105,13 @@ fn assert_complete(dir: &Path, n: usize) -> Vec<String> {
         assert_eq!(&t.counts, counts, "{}", t.id);
         assert_eq!(counts.stages, 4, "{}: down, shear, reverse, up", t.id);
         assert!(counts.poses > 100, "{}: {counts:?}", t.id);
+        // A trajectory of the cone plan lasts over 5 s of clock time: at 25 fps and 1 kHz,
+        // over 100 frames and 4000 wrench samples; every frame has its pair and its truth.
+        assert!(counts.frames > 100, "{}: {counts:?}", t.id);
+        assert!(counts.wrench > 4000, "{}: {counts:?}", t.id);
+        assert_eq!(counts.paired, counts.frames, "{}: {counts:?}", t.id);
+        assert_eq!(counts.truth, counts.frames, "{}: {counts:?}", t.id);
+        assert_eq!(t.frames_dropped, 0, "{}", t.id);
     }
     m.trajectories.iter().map(|t| t.id.clone()).collect()
 }

@@ -162,10 +162,14 @@ pub struct SimCameraStats {
     pub overruns: u64,
     /// Frames whose scene could not be rendered.
     pub failed_renders: u64,
+    /// Frames not sent while the camera was stalled ([`CameraFaults::set_stalled`]).
+    pub stalled: u64,
 }
 
 #[derive(Default)]
 struct Counters {
+    stall: std::sync::atomic::AtomicBool,
+    stalled: AtomicU64,
     delivered: AtomicU64,
     injected: AtomicU64,
     overruns: AtomicU64,
@@ -195,7 +199,25 @@ impl Drop for SimCamera {
     }
 }
 
+/// Fault injection into a running [`SimCamera`] (cheap to clone; outlives moves of the camera).
+#[derive(Clone)]
+pub struct CameraFaults(Arc<Counters>);
+
+impl CameraFaults {
+    /// A stalled camera keeps its clock and sequence counter running but sends nothing (a USB
+    /// camera whose stream hangs); frames due meanwhile are lost and counted in
+    /// [`SimCameraStats::stalled`]. Clearing the stall resumes delivery, with a sequence gap.
+    pub fn set_stalled(&self, on: bool) {
+        self.0.stall.store(on, Ordering::Release);
+    }
+}
+
 impl SimCamera {
+    /// Fault injection handle.
+    pub fn faults(&self) -> CameraFaults {
+        CameraFaults(self.counters.clone())
+    }
+
     /// Starts capturing on `clock`: the first frame is due one period after now. Must be called
     /// within a tokio runtime.
     pub fn spawn(
@@ -241,6 +263,7 @@ impl SimCamera {
             injected_drops: self.counters.injected.load(Ordering::Relaxed),
             overruns: self.counters.overruns.load(Ordering::Relaxed),
             failed_renders: self.counters.failed.load(Ordering::Relaxed),
+            stalled: self.counters.stalled.load(Ordering::Relaxed),
         }
     }
 }
@@ -281,42 +304,66 @@ async fn capture_loop(
     tx: mpsc::Sender<SimFrame>,
     counters: Arc<Counters>,
 ) {
+    // Frames render on the blocking pool, up to one per core at a time, and are delivered in
+    // sequence order: a renderer slower than the frame period then still keeps up when the
+    // machine has cores to spare. Each frame renders the scene at its own capture time.
+    let parallel = std::thread::available_parallelism().map_or(1, |n| n.get().min(4));
     let start = clock.now_ns();
-    for seq in 0u64.. {
-        let t = capture_time_ns(&config, start, seq);
-        clock.sleep_until_ns(t).await;
-        if tx.is_closed() {
-            return;
-        }
-        if is_dropped(&config, seq) {
-            counters.injected.fetch_add(1, Ordering::Relaxed);
-            continue;
-        }
-        // Rendering is CPU work: keep it off the async workers.
-        let r = renderer.clone();
-        let image = match tokio::task::spawn_blocking(move || r.render_at(t)).await {
-            Ok(Some(img)) => img,
-            _ => {
-                counters.failed.fetch_add(1, Ordering::Relaxed);
-                continue;
+    let mut seq = 0u64;
+    let mut next_t = capture_time_ns(&config, start, seq);
+    let mut inflight: std::collections::VecDeque<(u64, u64, JoinHandle<Option<image::RgbImage>>)> =
+        std::collections::VecDeque::new();
+    loop {
+        let capture_due = inflight.len() < parallel;
+        tokio::select! {
+            biased;
+            r = async { (&mut inflight.front_mut().expect("checked non-empty").2).await },
+                if !inflight.is_empty() =>
+            {
+                let (fseq, t, _) = inflight.pop_front().expect("checked non-empty");
+                let image = match r {
+                    Ok(Some(img)) => img,
+                    _ => {
+                        counters.failed.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    }
+                };
+                let frame = SimFrame {
+                    sequence: fseq,
+                    device_ts_ns: config.device_ts_ns(t),
+                    capture_t_ns: t,
+                    image,
+                };
+                match tx.try_send(frame) {
+                    Ok(()) => {
+                        counters.delivered.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(mpsc::error::TrySendError::Full(_)) => {
+                        counters.overruns.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(mpsc::error::TrySendError::Closed(_)) => return,
+                }
             }
-        };
-        let frame = SimFrame {
-            sequence: seq,
-            device_ts_ns: config.device_ts_ns(t),
-            capture_t_ns: t,
-            image,
-        };
-        match tx.try_send(frame) {
-            Ok(()) => {
-                counters.delivered.fetch_add(1, Ordering::Relaxed);
+            _ = clock.sleep_until_ns(next_t), if capture_due => {
+                let (this, t) = (seq, next_t);
+                seq += 1;
+                next_t = capture_time_ns(&config, start, seq);
+                if tx.is_closed() {
+                    return;
+                }
+                if is_dropped(&config, this) {
+                    counters.injected.fetch_add(1, Ordering::Relaxed);
+                    continue;
+                }
+                if counters.stall.load(Ordering::Acquire) {
+                    counters.stalled.fetch_add(1, Ordering::Relaxed);
+                    continue;
+                }
+                // Rendering is CPU work: keep it off the async workers.
+                let r = renderer.clone();
+                inflight.push_back((this, t, tokio::task::spawn_blocking(move || r.render_at(t))));
             }
-            Err(mpsc::error::TrySendError::Full(_)) => {
-                counters.overruns.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(mpsc::error::TrySendError::Closed(_)) => return,
         }
-        tokio::task::yield_now().await;
     }
 }
 

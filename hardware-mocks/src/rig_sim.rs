@@ -74,6 +74,7 @@ use tokio::task::JoinHandle;
 use crate::camera::{FrameRenderer, SimCamera, SimCameraConfig};
 use crate::nano17::SensorModel;
 use crate::nano17::netft::{NetFtMock, NetFtMockConfig};
+use crate::nano17::serial::{SerialControllerMock, SerialMockConfig};
 use crate::sim::optics::{self, ImageEffects};
 use crate::sim::{
     ContactModel, Effects, FrictionModel, IndenterPose, Scene, SimError, Simulator, SurfaceField,
@@ -102,6 +103,12 @@ pub struct PhysicsConfig {
     pub friction: FrictionModel,
     /// Samples kept in the ring buffer (at least 2).
     pub history: usize,
+    /// Step on demand too: a [`WrenchSource::wrench_at`] or [`ContactPhysics::field_at`] for a
+    /// time past the newest step first steps to the pose source's current pose, inline. The
+    /// F/T mock and the camera then see the contact at their own sample time rather than up to
+    /// a physics period (plus the task's wake-up delay, many ms on a scaled clock) late. Only
+    /// for cheap models (Winkler, Hertz): the step runs on the caller's task.
+    pub on_demand: bool,
 }
 
 impl Default for PhysicsConfig {
@@ -112,6 +119,7 @@ impl Default for PhysicsConfig {
             cell_mm: Some(DEFAULT_RUN_CELL_MM),
             friction: FrictionModel::Incremental,
             history: DEFAULT_HISTORY,
+            on_demand: false,
         }
     }
 }
@@ -197,8 +205,14 @@ struct SolverState {
 struct Results {
     ring: VecDeque<(u64, Wrench)>,
     last: Wrench,
-    field: Option<(u64, Arc<SurfaceField>)>,
+    /// The newest surface fields with their pose times, oldest first.
+    fields: VecDeque<(u64, Arc<SurfaceField>)>,
 }
+
+/// Surface fields kept for [`ContactPhysics::field_at`] (the camera renders a frame a little
+/// after its capture time; this covers 128 physics periods of lag, 0.5 s at 250 Hz). Fields
+/// out of contact share one allocation.
+const FIELD_HISTORY: usize = 128;
 
 struct Inner {
     surface_frame: Pose,
@@ -212,6 +226,8 @@ struct Inner {
     contact_steps: AtomicU64,
     errors: AtomicU64,
     skipped_ticks: AtomicU64,
+    /// The pose source of [`ContactPhysics::spawn`], for on-demand steps.
+    pose_source: Mutex<Option<PoseSource>>,
 }
 
 /// The contact physics of the simulated rig (see the module docs). Cheap to clone; every clone
@@ -264,12 +280,13 @@ impl ContactPhysics {
                 results: Mutex::new(Results {
                     ring: VecDeque::with_capacity(history),
                     last: Wrench::default(),
-                    field: None,
+                    fields: VecDeque::with_capacity(FIELD_HISTORY),
                 }),
                 steps: AtomicU64::new(0),
                 contact_steps: AtomicU64::new(0),
                 errors: AtomicU64::new(0),
                 skipped_ticks: AtomicU64::new(0),
+                pose_source: Mutex::new(None),
             }),
         })
     }
@@ -351,14 +368,44 @@ impl ContactPhysics {
         }
         res.ring.push_back((t_ns, w));
         if let Some(f) = new_field {
-            res.field = Some((t_ns, f));
+            if res.fields.len() == FIELD_HISTORY {
+                res.fields.pop_front();
+            }
+            res.fields.push_back((t_ns, f));
         }
         result
     }
 
     /// The newest surface field and the clock time of its pose, if any step made one.
     pub fn latest_field(&self) -> Option<(u64, Arc<SurfaceField>)> {
-        lock(&self.inner.results).field.clone()
+        lock(&self.inner.results).fields.back().cloned()
+    }
+
+    /// With [`PhysicsConfig::on_demand`]: a step to the pose source's current pose when the
+    /// newest step is older than `t_ns`.
+    fn catch_up(&self, t_ns: u64) {
+        if !self.inner.config.on_demand {
+            return;
+        }
+        if self.latest().is_some_and(|(t, _)| t >= t_ns) {
+            return;
+        }
+        let src = lock(&self.inner.pose_source).clone();
+        if let Some(src) = src {
+            let (t, tcp) = src();
+            if let Err(e) = self.update(t, &tcp) {
+                tracing::debug!("contact physics on demand at {t} ns: {e}");
+            }
+        }
+    }
+
+    /// The surface field of the newest step at or before `t_ns` (the oldest kept one if all
+    /// are later), with its pose time.
+    pub fn field_at(&self, t_ns: u64) -> Option<(u64, Arc<SurfaceField>)> {
+        self.catch_up(t_ns);
+        let res = lock(&self.inner.results);
+        let i = res.fields.partition_point(|(t, _)| *t <= t_ns);
+        res.fields.get(i.saturating_sub(1)).cloned()
     }
 
     /// The newest `(t_ns, wrench)` sample.
@@ -379,6 +426,7 @@ impl ContactPhysics {
     /// `pose_source` and runs [`ContactPhysics::update`] (off the async workers). Missed ticks
     /// are skipped, not replayed. Must be called within a tokio runtime.
     pub fn spawn(&self, clock: Clock, pose_source: PoseSource) -> JoinHandle<()> {
+        *lock(&self.inner.pose_source) = Some(pose_source.clone());
         let physics = self.clone();
         let period = Duration::from_secs_f64(1.0 / self.inner.config.rate_hz);
         tokio::spawn(async move {
@@ -415,6 +463,7 @@ impl ContactPhysics {
 impl WrenchSource for ContactPhysics {
     /// Linear interpolation in the buffer, clamped at both ends; zero before the first step.
     fn wrench_at(&self, t_ns: u64) -> Wrench {
+        self.catch_up(t_ns);
         let res = lock(&self.inner.results);
         let ring = &res.ring;
         let Some(&(t_first, w_first)) = ring.front() else {
@@ -441,7 +490,8 @@ impl WrenchSource for ContactPhysics {
     }
 }
 
-/// Renders the newest surface field of a [`ContactPhysics`] with the sensor's optics. Frame `n`
+/// Renders the surface field of a [`ContactPhysics`] at the capture time (the newest step at
+/// or before it) with the sensor's optics. Frame `n`
 /// uses noise seed `noise_seed + n`. Gives no frame before the physics has made a field (the
 /// physics must have been created with `want_field`).
 pub struct PhysicsRenderer {
@@ -470,8 +520,9 @@ impl PhysicsRenderer {
 }
 
 impl FrameRenderer for PhysicsRenderer {
-    fn render_at(&self, _t_ns: u64) -> Option<image::RgbImage> {
-        let (_, field) = self.physics.latest_field()?;
+    fn render_at(&self, t_ns: u64) -> Option<image::RgbImage> {
+        // The field at the capture time, even when rendering runs late.
+        let (_, field) = self.physics.field_at(t_ns)?;
         let n = self.frames.fetch_add(1, Ordering::Relaxed);
         Some(optics::render(
             &self.optics,
@@ -493,6 +544,9 @@ pub struct SimRigOptions {
     pub physics: PhysicsConfig,
     /// Net F/T records per second. `None`: `force_sensor.rate_hz` of the config, else 1 kHz.
     pub netft_rate_hz: Option<f64>,
+    /// How the simulated Nano17 is connected: a Net F/T on UDP (default) or an F/T controller
+    /// on a serial pty (ASCII records), both driven by the same physics.
+    pub ft_front_end: SimFtFrontEnd,
     /// Seed of the F/T noise.
     pub netft_seed: u64,
     /// Start a simulated camera with this behaviour; `None`: no camera (and no surface field).
@@ -510,6 +564,7 @@ impl Default for SimRigOptions {
             initial_robot_mode: rig_core::control::robot_mode::POWER_OFF,
             physics: PhysicsConfig::default(),
             netft_rate_hz: None,
+            ft_front_end: SimFtFrontEnd::NetFt,
             netft_seed: 49152,
             camera: None,
             image_effects: ImageEffects::default(),
@@ -547,13 +602,51 @@ pub fn pose_above_surface(surface_frame: &Pose, x_mm: f64, y_mm: f64, height_mm:
     )
 }
 
+/// How the simulated Nano17 reaches the rig.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SimFtFrontEnd {
+    /// A Net F/T box on loopback UDP (RDT).
+    #[default]
+    NetFt,
+    /// An ATI F/T controller on a serial pty (ASCII records at the configured rate).
+    Serial,
+}
+
+/// The simulated F/T front end that runs.
+pub enum SimFt {
+    NetFt(NetFtMock),
+    Serial(SerialControllerMock),
+}
+
+impl SimFt {
+    /// Fault injection (unplug, mute, saturate, garbage ...).
+    pub fn faults(&self) -> &Arc<crate::nano17::Faults> {
+        match self {
+            SimFt::NetFt(m) => m.faults(),
+            SimFt::Serial(m) => m.faults(),
+        }
+    }
+    pub fn stats(&self) -> &Arc<crate::nano17::MockStats> {
+        match self {
+            SimFt::NetFt(m) => m.stats(),
+            SimFt::Serial(m) => m.stats(),
+        }
+    }
+    async fn shutdown(self) {
+        match self {
+            SimFt::NetFt(m) => m.shutdown().await,
+            SimFt::Serial(m) => m.shutdown().await,
+        }
+    }
+}
+
 /// The running simulated rig: UR5e, contact physics, Net F/T and (optionally) camera on one
 /// clock. Dropping it stops every task.
 pub struct SimRig {
     ur5e: Arc<Ur5e>,
     physics: ContactPhysics,
     physics_task: AbortOnDrop,
-    netft: NetFtMock,
+    ft: SimFt,
     camera: Option<SimCamera>,
 }
 
@@ -592,8 +685,10 @@ impl SimRig {
         let src = ur5e.clone();
         let physics_task = AbortOnDrop(Some(physics.spawn(
             clock.clone(),
+            // The pose at the current clock time (due controller ticks processed first), so
+            // an on-demand step sees the contact at the caller's time.
             Arc::new(move || {
-                let s = src.snapshot();
+                let s = src.snapshot_now();
                 (s.t_ns, s.actual_tcp_pose)
             }),
         )));
@@ -605,18 +700,36 @@ impl SimRig {
             model.tool = ToolTransform::from_angles(fs.tool_offset_mm, r)
                 .map_err(|e| invalid(format!("force_sensor tool transform: {e}")))?;
         }
-        let nf_cfg = NetFtMockConfig {
-            rate_hz: opts
-                .netft_rate_hz
-                .or(fs.map(|f| f.rate_hz))
-                .unwrap_or(1000.0),
-            counts_per_force: fs.and_then(|f| f.counts_per_force).unwrap_or(1e6),
-            counts_per_torque: fs.and_then(|f| f.counts_per_torque).unwrap_or(1e3),
-            seed: opts.netft_seed,
-            ..NetFtMockConfig::default()
-        };
+        let rate_hz = opts
+            .netft_rate_hz
+            .or(fs.map(|f| f.rate_hz))
+            .unwrap_or(1000.0);
         let source: SharedWrenchSource = Arc::new(physics.clone());
-        let netft = NetFtMock::start(nf_cfg, model, source, clock.clone()).await?;
+        let ft = match opts.ft_front_end {
+            SimFtFrontEnd::NetFt => {
+                let nf_cfg = NetFtMockConfig {
+                    rate_hz,
+                    counts_per_force: fs.and_then(|f| f.counts_per_force).unwrap_or(1e6),
+                    counts_per_torque: fs.and_then(|f| f.counts_per_torque).unwrap_or(1e3),
+                    seed: opts.netft_seed,
+                    ..NetFtMockConfig::default()
+                };
+                SimFt::NetFt(NetFtMock::start(nf_cfg, model, source, clock.clone()).await?)
+            }
+            SimFtFrontEnd::Serial => {
+                let cfg = SerialMockConfig {
+                    rate_hz,
+                    seed: opts.netft_seed,
+                    ..SerialMockConfig::default()
+                };
+                SimFt::Serial(SerialControllerMock::start(
+                    cfg,
+                    model,
+                    source,
+                    clock.clone(),
+                )?)
+            }
+        };
 
         let camera = match &opts.camera {
             Some(cam_cfg) => {
@@ -635,7 +748,10 @@ impl SimRig {
         };
         tracing::info!(
             rtde = %ur5e.rtde_addr(),
-            netft = %netft.addr(),
+            ft = %match &ft {
+                SimFt::NetFt(m) => format!("Net F/T {}", m.addr()),
+                SimFt::Serial(m) => format!("serial {}", m.path().display()),
+            },
             camera = camera.is_some(),
             "simulated rig started"
         );
@@ -643,7 +759,7 @@ impl SimRig {
             ur5e,
             physics,
             physics_task,
-            netft,
+            ft,
             camera,
         })
     }
@@ -657,13 +773,30 @@ impl SimRig {
         &self.physics
     }
 
-    /// The Net F/T mock's UDP address.
-    pub fn netft_addr(&self) -> SocketAddr {
-        self.netft.addr()
+    /// The Net F/T mock's UDP address (`None` with a serial front end).
+    pub fn netft_addr(&self) -> Option<SocketAddr> {
+        match &self.ft {
+            SimFt::NetFt(m) => Some(m.addr()),
+            SimFt::Serial(_) => None,
+        }
     }
 
-    pub fn netft(&self) -> &NetFtMock {
-        &self.netft
+    /// The serial F/T controller's pty (`None` with a Net F/T front end).
+    pub fn ft_serial_path(&self) -> Option<&std::path::Path> {
+        match &self.ft {
+            SimFt::Serial(m) => Some(m.path()),
+            SimFt::NetFt(_) => None,
+        }
+    }
+
+    /// The simulated F/T front end (faults, counters).
+    pub fn ft(&self) -> &SimFt {
+        &self.ft
+    }
+
+    /// The UR5e, shareable (for fault injection from another task).
+    pub fn ur5e_arc(&self) -> Arc<Ur5e> {
+        self.ur5e.clone()
     }
 
     /// The simulated camera, when one was asked for.
@@ -682,11 +815,11 @@ impl SimRig {
             ur5e,
             physics: _,
             physics_task,
-            netft,
+            ft,
             camera,
         } = self;
         drop(camera);
-        netft.shutdown().await;
+        ft.shutdown().await;
         physics_task.stop().await;
         match Arc::try_unwrap(ur5e) {
             Ok(ur) => ur.shutdown().await,

@@ -256,8 +256,8 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     let home = rig.ur5e().snapshot().actual_tcp_pose;
     assert!((indenter_pose(&frame, &home).depth_mm + 2.0).abs() < 1e-9);
     upload_program(rig.ur5e()).await;
-    let netft = NetFtClient::start(rig.netft_addr()).await;
-    let stats = rig.netft().stats().clone();
+    let netft = NetFtClient::start(rig.netft_addr().expect("Net F/T front end")).await;
+    let stats = rig.ft().stats().clone();
     eventually("the stream request", || {
         MockStats::get(&stats.commands) == 1
     })

@@ -43,6 +43,30 @@ enum Inner {
         now_ns: AtomicU64,
         tick: watch::Sender<u64>,
     },
+    Governed {
+        seg: std::sync::Mutex<Segment>,
+        /// Bumped on every rate change, so sleepers recompute their deadlines.
+        changed: watch::Sender<u64>,
+    },
+}
+
+/// A stretch of a governed clock at one rate: `t = base_ns + (now − base) · factor`.
+#[derive(Debug, Clone, Copy)]
+struct Segment {
+    base: Instant,
+    base_ns: u64,
+    factor: f64,
+}
+
+impl Segment {
+    fn now_ns(&self) -> u64 {
+        self.base_ns
+            .saturating_add((self.base.elapsed().as_secs_f64() * self.factor * 1e9) as u64)
+    }
+    fn deadline(&self, t_ns: u64) -> Instant {
+        let ahead = t_ns.saturating_sub(self.base_ns) as f64 * 1e-9 / self.factor;
+        self.base + Duration::from_secs_f64(ahead.min(1e9))
+    }
 }
 
 /// Advances a manual clock. Dropping it does not stop the clock's sleepers from being woken by
@@ -86,6 +110,54 @@ impl Clock {
         }
     }
 
+    /// Simulated time like [`Clock::scaled`], whose rate can be changed while it runs
+    /// ([`Clock::set_rate`]): a governor slows it down when a simulated device cannot keep up,
+    /// so every device still sees one consistent time. Time never jumps: a rate change only
+    /// changes how fast it moves from now on. Sleepers wake at the right clock time across rate
+    /// changes.
+    ///
+    /// Panics if `factor` is not finite and positive (a programming error).
+    pub fn governed(factor: f64) -> Self {
+        assert!(
+            factor.is_finite() && factor > 0.0,
+            "clock scale factor must be finite and positive, got {factor}"
+        );
+        let (changed, _) = watch::channel(0);
+        Self {
+            inner: Arc::new(Inner::Governed {
+                seg: std::sync::Mutex::new(Segment {
+                    base: Instant::now(),
+                    base_ns: 0,
+                    factor,
+                }),
+                changed,
+            }),
+        }
+    }
+
+    /// Changes the rate of a [`Clock::governed`] clock from now on; returns `false` (and does
+    /// nothing) for any other clock or a rate that is not finite and positive.
+    pub fn set_rate(&self, factor: f64) -> bool {
+        let Inner::Governed { seg, changed } = &*self.inner else {
+            return false;
+        };
+        if !(factor.is_finite() && factor > 0.0) {
+            return false;
+        }
+        {
+            let mut g = seg.lock().unwrap_or_else(|p| p.into_inner());
+            let now = Instant::now();
+            let t = g.now_ns();
+            *g = Segment {
+                base: now,
+                base_ns: t,
+                factor,
+            };
+        }
+        changed.send_modify(|g| *g = g.wrapping_add(1));
+        true
+    }
+
     /// A clock that only moves when the returned handle advances it. It starts at `t_ns = 0`.
     pub fn manual() -> (Self, ClockHandle) {
         let (tick, _) = watch::channel(0);
@@ -108,6 +180,7 @@ impl Clock {
             Inner::System { .. } => 1.0,
             Inner::Scaled { factor, .. } => *factor,
             Inner::Manual { .. } => f64::INFINITY,
+            Inner::Governed { seg, .. } => seg.lock().unwrap_or_else(|p| p.into_inner()).factor,
         }
     }
 
@@ -120,6 +193,7 @@ impl Clock {
                 (real * factor * 1e9) as u64
             }
             Inner::Manual { now_ns, .. } => now_ns.load(Ordering::Acquire),
+            Inner::Governed { seg, .. } => seg.lock().unwrap_or_else(|p| p.into_inner()).now_ns(),
         }
     }
 
@@ -148,6 +222,25 @@ impl Clock {
                 // `wait_for` checks the current value first, so an already-passed deadline
                 // returns at once. The sender lives in `self`, so the channel never closes here.
                 let _ = rx.wait_for(|now| *now >= t_ns).await;
+            }
+            Inner::Governed { seg, changed } => {
+                let mut rx = changed.subscribe();
+                loop {
+                    // Subscribed before reading the segment: a change after this is seen.
+                    rx.borrow_and_update();
+                    let (now, deadline) = {
+                        let g = seg.lock().unwrap_or_else(|p| p.into_inner());
+                        (g.now_ns(), g.deadline(t_ns))
+                    };
+                    if now >= t_ns {
+                        return;
+                    }
+                    tokio::select! {
+                        _ = tokio::time::sleep_until(deadline) => {}
+                        // The sender lives in `self`: the channel never closes here.
+                        _ = rx.changed() => {}
+                    }
+                }
             }
         }
     }
@@ -304,5 +397,57 @@ mod tests {
         );
         let dt = clock.now_ns() - t0;
         assert!((1_000_000_000..1_010_000_000).contains(&dt), "{dt}");
+    }
+
+    #[tokio::test]
+    async fn governed_clock_sleepers_wake_at_their_clock_time_across_rate_changes() {
+        let clock = Clock::governed(200.0);
+        let target = 2_000_000_000; // 2 s of clock time = 10 ms real at ×200
+        let c2 = clock.clone();
+        let sleeper = tokio::spawn(async move {
+            c2.sleep_until_ns(target).await;
+            c2.now_ns()
+        });
+        tokio::time::sleep(Duration::from_millis(2)).await;
+        // Slower: a deadline computed at ×200 would now fire long before 2 s of clock time.
+        assert!(clock.set_rate(20.0));
+        let before = clock.now_ns();
+        assert!(
+            before < target,
+            "the first 2 ms of real time passed {before} ns"
+        );
+        let woke = sleeper.await.unwrap();
+        assert!(
+            woke >= target,
+            "woke at {woke} ns, before its deadline {target}"
+        );
+        assert_eq!(clock.rate(), 20.0);
+
+        // Faster while sleeping: still wakes, at or after its deadline.
+        let c3 = clock.clone();
+        let t2 = clock.now_ns() + 500_000_000;
+        let sleeper = tokio::spawn(async move {
+            c3.sleep_until_ns(t2).await;
+            c3.now_ns()
+        });
+        tokio::time::sleep(Duration::from_millis(1)).await;
+        assert!(clock.set_rate(1000.0));
+        assert!(sleeper.await.unwrap() >= t2);
+    }
+
+    #[test]
+    fn governed_clock_never_jumps_or_goes_backwards_on_rate_changes() {
+        let clock = Clock::governed(50.0);
+        let mut last = clock.now_ns();
+        for k in 0..200 {
+            let r = if k % 2 == 0 { 0.5 } else { 80.0 };
+            assert!(clock.set_rate(r));
+            let now = clock.now_ns();
+            assert!(now >= last, "time went back from {last} to {now}");
+            last = now;
+        }
+        assert!(!clock.set_rate(f64::NAN));
+        assert!(!clock.set_rate(0.0));
+        assert!(!Clock::scaled(2.0).set_rate(3.0), "a fixed clock refuses");
     }
 }

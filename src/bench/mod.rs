@@ -1,6 +1,7 @@
 //! `rig bench …`: what accuracy costs in time. Each benchmark prints a table and writes a plot.
 
 pub mod render;
+pub mod run;
 pub mod sim;
 pub mod sync;
 
@@ -21,6 +22,8 @@ pub enum BenchCommand {
     Render(render::RenderBenchArgs),
     /// Synchronisation: interpolation and drift estimation against the true signal.
     Sync(sync::SyncBenchArgs),
+    /// The whole `rig run` on the simulated rig: wall-clock time, effective speed, accuracy.
+    Run(run::RunBenchArgs),
 }
 
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
@@ -28,5 +31,6 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Sim(a) => sim::run(a),
         BenchCommand::Render(a) => render::run(a),
         BenchCommand::Sync(a) => sync::run(a),
+        BenchCommand::Run(a) => run::run(a),
     }
 }

@@ -182,6 +182,12 @@ pub trait FrameSource: Send {
     fn next_frame(&mut self) -> FrameFuture<'_>;
     /// Frames delivered and lost so far.
     fn stats(&self) -> CaptureStats;
+    /// Simulated sources only: the true capture time (shared clock, ns) of the frame the last
+    /// [`next_frame`](Self::next_frame) returned, the ground truth a recording is checked
+    /// against. Real cameras have none.
+    fn true_capture_ns(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// Counts lost frames from device sequence numbers (V4L2 `sequence` is a `u32` that wraps).

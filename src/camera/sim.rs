@@ -20,6 +20,7 @@ pub struct SimFrameSource {
     format: FrameFormat,
     seq: SequenceTracker,
     frames: u64,
+    last_capture_ns: Option<u64>,
 }
 
 impl SimFrameSource {
@@ -37,12 +38,18 @@ impl SimFrameSource {
             },
             seq: SequenceTracker::new(None),
             frames: 0,
+            last_capture_ns: None,
         }
     }
 
     /// The camera's own counters (delivered, injected drops, overruns).
     pub fn camera_stats(&self) -> hardware_mocks::camera::SimCameraStats {
         self.camera.stats()
+    }
+
+    /// Fault injection into the camera (stall).
+    pub fn faults(&self) -> hardware_mocks::camera::CameraFaults {
+        self.camera.faults()
     }
 }
 
@@ -57,6 +64,7 @@ impl FrameSource for SimFrameSource {
             let received_t_ns = self.clock.now_ns();
             let dropped_before = self.seq.observe(f.sequence);
             self.frames += 1;
+            self.last_capture_ns = Some(f.capture_t_ns);
             let (width, height) = f.image.dimensions();
             Ok(Frame {
                 sequence: f.sequence,
@@ -79,5 +87,9 @@ impl FrameSource for SimFrameSource {
             frames: self.frames,
             dropped: self.seq.lost(),
         }
+    }
+
+    fn true_capture_ns(&self) -> Option<u64> {
+        self.last_capture_ns
     }
 }

@@ -534,6 +534,14 @@ impl FtStream {
         self.error.lock().ok().and_then(|g| g.clone())
     }
 
+    /// A handle that tares this stream from another task while this one keeps reading it.
+    pub fn tare_handle(&self) -> TareHandle {
+        TareHandle {
+            ctl: self.ctl.clone(),
+            error: self.error.clone(),
+        }
+    }
+
     /// Tares over the next `samples` samples (the sensor must be unloaded). Samples keep
     /// flowing meanwhile; those before the tare completes use the previous bias.
     pub async fn tare(&mut self, samples: u64) -> Result<TareReport, FtError> {
@@ -556,6 +564,31 @@ impl FtStream {
             Some(e) => Err(e),
             None => Ok(self.stats()),
         }
+    }
+}
+
+/// Tares an [`FtStream`] that another task reads (see [`FtStream::tare_handle`]).
+#[derive(Clone)]
+pub struct TareHandle {
+    ctl: mpsc::UnboundedSender<Control>,
+    error: Arc<Mutex<Option<FtError>>>,
+}
+
+impl TareHandle {
+    /// As [`FtStream::tare`]; the samples must keep being read meanwhile.
+    pub async fn tare(&self, samples: u64) -> Result<TareReport, FtError> {
+        let err = || {
+            self.error
+                .lock()
+                .ok()
+                .and_then(|g| g.clone())
+                .unwrap_or(FtError::Stopped)
+        };
+        let (tx, rx) = oneshot::channel();
+        self.ctl
+            .send(Control::Tare { samples, reply: tx })
+            .map_err(|_| err())?;
+        rx.await.map_err(|_| err())
     }
 }
 

@@ -25,14 +25,18 @@ pub const TOPIC_POSE: &str = "/robot/tcp_pose";
 pub const TOPIC_PAIRED: &str = "/sync/paired_wrench";
 /// Stage changes: down, shear, reverse, up (`rig.StageLabel`).
 pub const TOPIC_STAGE: &str = "/plan/stage";
+/// Simulated rig only: the simulator's true wrench at each frame's capture time
+/// (`rig.TrueWrench`), the ground truth the paired wrench is checked against.
+pub const TOPIC_TRUTH: &str = "/sim/true_wrench";
 
 /// Every channel: topic, schema name, JSON schema.
-pub const CHANNELS: [(&str, &str, &str); 5] = [
+pub const CHANNELS: [(&str, &str, &str); 6] = [
     (TOPIC_IMAGE, "foxglove.CompressedImage", IMAGE_SCHEMA),
     (TOPIC_WRENCH, "rig.Wrench", WRENCH_SCHEMA),
     (TOPIC_POSE, "foxglove.PoseInFrame", POSE_SCHEMA),
     (TOPIC_PAIRED, "rig.PairedWrench", PAIRED_SCHEMA),
     (TOPIC_STAGE, "rig.StageLabel", STAGE_SCHEMA),
+    (TOPIC_TRUTH, "rig.TrueWrench", TRUTH_SCHEMA),
 ];
 
 const TIME: &str = r#"{"type":"object","title":"time","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,"maximum":999999999}}}"#;
@@ -46,6 +50,8 @@ const POSE_SCHEMA: &str = r#"{"title":"foxglove.PoseInFrame","description":"TCP 
 const PAIRED_SCHEMA: &str = r#"{"title":"rig.PairedWrench","description":"The wrench at a frame's mid-exposure time","type":"object","properties":{"timestamp":TIME,"frame_seq":{"type":"integer"},"force_n":{"type":["array","null"],"items":{"type":"number"}},"torque_nmm":{"type":["array","null"],"items":{"type":"number"}},"sync_error_ns":{"type":["number","null"]},"status":{"type":"string","enum":["ok","held","out_of_range","gap","no_data"]},"stage":{"type":["string","null"]},"tcp_pose":{"type":["array","null"],"items":{"type":"number"},"description":"UR pose [x,y,z (m), rx,ry,rz (rad)]"}}}"#;
 
 const STAGE_SCHEMA: &str = r#"{"title":"rig.StageLabel","description":"The stage that begins at timestamp","type":"object","properties":{"timestamp":TIME,"stage":{"type":"string","enum":["down","shear","reverse","up"]}}}"#;
+
+const TRUTH_SCHEMA: &str = r#"{"title":"rig.TrueWrench","description":"Simulated rig: the simulator's wrench (on the gel, at the indenter tip, surface-frame axes) at a frame's true capture time","type":"object","properties":{"timestamp":TIME,"frame_seq":{"type":"integer"},"force_n":{"type":"array","items":{"type":"number"},"minItems":3,"maxItems":3},"torque_nmm":{"type":"array","items":{"type":"number"},"minItems":3,"maxItems":3}}}"#;
 
 /// The JSON schema text of a channel (the `TIME` placeholder expanded).
 pub fn schema_text(raw: &str) -> String {
@@ -133,6 +139,16 @@ pub struct PairedMsg {
     pub tcp_pose: Option<[f64; 6]>,
 }
 
+/// `rig.TrueWrench` in JSON.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TruthMsg {
+    /// The frame's true capture time (simulated clock = host clock).
+    pub timestamp: Time,
+    pub frame_seq: i64,
+    pub force_n: [f64; 3],
+    pub torque_nmm: [f64; 3],
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StageMsg {
     pub timestamp: Time,
@@ -156,6 +172,12 @@ pub enum Record {
     Paired(PairedFrame),
     /// A stage begins.
     Stage { t_ns: u64, stage: StageName },
+    /// Simulated rig only: the true wrench at frame `frame_seq`'s capture time `t_ns`.
+    Truth {
+        frame_seq: i64,
+        t_ns: u64,
+        wrench: Wrench,
+    },
 }
 
 impl Record {
@@ -239,6 +261,20 @@ impl Record {
                 json(&StageMsg {
                     timestamp: Time::from_ns(*t_ns),
                     stage: stage.as_str().into(),
+                }),
+            ),
+            Record::Truth {
+                frame_seq,
+                t_ns,
+                wrench,
+            } => (
+                TOPIC_TRUTH,
+                *t_ns,
+                json(&TruthMsg {
+                    timestamp: Time::from_ns(*t_ns),
+                    frame_seq: *frame_seq,
+                    force_n: wrench.force_n,
+                    torque_nmm: wrench.torque_nmm,
                 }),
             ),
         }

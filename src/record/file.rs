@@ -194,6 +194,7 @@ impl TrajectoryWriter {
             Record::Pose { .. } => self.counts.poses += 1,
             Record::Paired(_) => self.counts.paired += 1,
             Record::Stage { .. } => self.counts.stages += 1,
+            Record::Truth { .. } => self.counts.truth += 1,
         }
         Ok(())
     }
@@ -363,6 +364,10 @@ pub fn read_bytes(bytes: &[u8]) -> Result<FileContents, String> {
             channels::TOPIC_STAGE => {
                 let _: channels::StageMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
                 out.counts.stages += 1;
+            }
+            channels::TOPIC_TRUTH => {
+                let _: channels::TruthMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
+                out.counts.truth += 1;
             }
             other => return Err(format!("unexpected channel {other}")),
         }

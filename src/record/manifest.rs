@@ -10,7 +10,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::channels::{TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_WRENCH};
+use super::channels::{
+    TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_TRUTH, TOPIC_WRENCH,
+};
 use super::file::write_atomic;
 
 /// File name of the manifest in an output directory.
@@ -24,6 +26,9 @@ pub struct Counts {
     pub poses: u64,
     pub paired: u64,
     pub stages: u64,
+    /// Simulated rig only: true wrench messages (one per frame).
+    #[serde(default)]
+    pub truth: u64,
 }
 
 impl Counts {
@@ -35,6 +40,7 @@ impl Counts {
             TOPIC_POSE => self.poses,
             TOPIC_PAIRED => self.paired,
             TOPIC_STAGE => self.stages,
+            TOPIC_TRUTH => self.truth,
             _ => 0,
         }
     }

@@ -461,6 +461,10 @@ impl Unwrapper {
 pub enum DeviceTimebase {
     /// A nanosecond timestamp (V4L2 buffer stamps, a device's own ns clock).
     Nanos,
+    /// Nanoseconds of the host clock itself (V4L2 buffers flagged `TIMESTAMP_MONOTONIC` on the
+    /// host's `CLOCK_MONOTONIC`; a simulated device on the shared clock): taken as host times,
+    /// with no offset or drift to estimate.
+    HostNanos,
     /// Seconds as `f64` (the RTDE `timestamp` field).
     Seconds,
     /// A `bits`-wide sample counter at a nominal rate (F/T sequence numbers).

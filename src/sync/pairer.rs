@@ -333,7 +333,12 @@ impl Pairer {
         // Snapshots of both clock fits: every sample is mapped with the fit as it stands now.
         let wmaps = self.wrench_clock.estimator.epoch_maps();
         let fmaps = self.frame_clock.estimator.epoch_maps();
+        let w_host_stamps = matches!(self.cfg.wrench_timebase, DeviceTimebase::HostNanos);
+        let f_host_stamps = matches!(self.cfg.frame_timebase, DeviceTimebase::HostNanos);
         let host = |e: &WrenchEntry| {
+            if w_host_stamps {
+                return e.device_ns as f64;
+            }
             wmaps
                 .to_host(e.epoch, e.device_ns)
                 .unwrap_or(f64::NEG_INFINITY)
@@ -342,7 +347,11 @@ impl Pairer {
             if f.epoch == u32::MAX {
                 return None;
             }
-            let stamp = fmaps.to_host(f.epoch, f.device_ns)?;
+            let stamp = if f_host_stamps {
+                f.device_ns as f64
+            } else {
+                fmaps.to_host(f.epoch, f.device_ns)?
+            };
             Some(interp::mid_exposure_ns(stamp, self.cfg.exposure_latency_ns))
         };
         let newest_w = self.wrench.back().map(host);

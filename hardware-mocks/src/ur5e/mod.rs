@@ -201,9 +201,25 @@ struct Shared {
     next_conn: AtomicU64,
     t0_ns: u64,
     tick_period_ns: u64,
+    /// Clock time of the next tick to process; held while ticks are processed, so the
+    /// controller task and [`Ur5e::snapshot_now`] never process one tick twice or out of order.
+    next_tick_ns: Mutex<u64>,
 }
 
 impl Shared {
+    /// Process every tick due at clock time `now`, in order, broadcasting each snapshot.
+    fn process_due_ticks(&self, now: u64) {
+        let mut next = self.next_tick_ns.lock().unwrap_or_else(|p| p.into_inner());
+        while *next <= now {
+            let t_ns = *next;
+            *next += self.tick_period_ns;
+            let snap = Arc::new(self.lock().tick(t_ns));
+            // No receivers is fine: nobody streams yet.
+            let _ = self.samples.send(snap);
+            self.ticks_done.send_replace(t_ns);
+        }
+    }
+
     fn lock(&self) -> MutexGuard<'_, Controller> {
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
@@ -270,6 +286,7 @@ impl Ur5e {
             packages_sent: AtomicU64::new(0),
             next_conn: AtomicU64::new(1),
             t0_ns: t0,
+            next_tick_ns: Mutex::new(t0 + tick_period_ns),
             tick_period_ns,
         });
         let tasks = vec![
@@ -303,6 +320,15 @@ impl Ur5e {
         let mut s = self.shared.lock().snapshot();
         s.data_packages_sent = self.shared.packages_sent.load(Ordering::Relaxed);
         s
+    }
+
+    /// The controller's state at the current clock time: ticks already due are processed first
+    /// (and broadcast, in order), as if the controller task had woken on time. A consumer that
+    /// needs the pose *now* (the contact physics) uses this rather than [`Ur5e::snapshot`],
+    /// which lags by the task's wake-up delay (milliseconds of clock time on a scaled clock).
+    pub fn snapshot_now(&self) -> ControllerSnapshot {
+        self.shared.process_due_ticks(self.shared.clock.now_ns());
+        self.snapshot()
     }
 
     /// The fault injector.
@@ -358,21 +384,23 @@ impl Drop for Ur5e {
 /// [`MAX_CATCH_UP_NS`] behind (the process was suspended) does it skip ahead, with a warning.
 async fn run_controller(shared: Arc<Shared>) {
     let period = shared.tick_period_ns;
-    let mut next_ns = shared.t0_ns + period;
     loop {
+        let next_ns = *shared
+            .next_tick_ns
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
         shared.clock.sleep_until_ns(next_ns).await;
         let now = shared.clock.now_ns();
         if now.saturating_sub(next_ns) > MAX_CATCH_UP_NS {
             let skipped = (now - next_ns) / period;
             tracing::warn!("simulated controller fell {skipped} ticks behind; skipping them");
-            next_ns += skipped * period;
+            let mut next = shared
+                .next_tick_ns
+                .lock()
+                .unwrap_or_else(|p| p.into_inner());
+            *next = (*next).max(next_ns + skipped * period);
         }
-        let t_ns = next_ns;
-        next_ns += period;
-        let snap = Arc::new(shared.lock().tick(t_ns));
-        // No receivers is fine: nobody streams yet.
-        let _ = shared.samples.send(snap);
-        shared.ticks_done.send_replace(t_ns);
+        shared.process_due_ticks(now);
     }
 }
 

@@ -1,0 +1,481 @@
+//! The F/T and camera streams of a run, each read on its own task for the whole run.
+//!
+//! - The **F/T task** reads every [`WrenchSample`] of the [`FtStream`], checks it against the
+//!   force limit and forwards it to the sync task. A force above `safety.max_force_n`, a
+//!   saturated sensor, the stream ending (a closed port, a dead link) or no sample within the
+//!   stall timeout raises a [`Trip`], which the motion watches.
+//! - The **camera task** reads every frame of the [`FrameSource`], looks up the simulator's true
+//!   wrench at its capture time (simulated rig only) and hands it to the **encoder thread**,
+//!   which encodes it as PNG (lossless, off the async workers) and forwards it. No frame for
+//!   the stall timeout, or the stream ending, raises a [`Trip`].
+//!
+//! Both forward into one bounded channel (the sync task's input). When it is full they wait:
+//! a slow consumer shows as back-pressure (counted in [`StreamCounters::backpressure_waits`],
+//! warned about once), and the device's own buffers (the F/T channel, the camera queue) take
+//! the slack; nothing is dropped silently.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use hardware_mocks::truth::SharedWrenchSource;
+use rig_core::clock::Clock;
+use rig_core::ft::SampleFlags;
+use rig_core::wrench::Wrench;
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+
+use crate::camera::{CameraError, Frame, FrameSource};
+use crate::force::{FtStream, TareHandle, TareReport, WrenchSample};
+
+/// Why motion must stop now.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Trip {
+    /// The measured force exceeded `safety.max_force_n`.
+    ForceLimit { force_n: f64, limit_n: f64 },
+    /// The F/T sensor reports an axis at or beyond its range.
+    Saturated { force_n: f64 },
+    /// The F/T stream ended.
+    FtLost(String),
+    /// No F/T sample for this long (clock time, ms).
+    FtStalled { after_ms: f64 },
+    /// The camera stream ended.
+    CameraLost(String),
+    /// No frame for this long (clock time, ms).
+    CameraStalled { after_ms: f64 },
+}
+
+impl Trip {
+    /// A lost or stalled stream cannot be recorded from: the run stops.
+    pub fn is_fatal(&self) -> bool {
+        !matches!(self, Trip::ForceLimit { .. } | Trip::Saturated { .. })
+    }
+}
+
+impl std::fmt::Display for Trip {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Trip::ForceLimit { force_n, limit_n } => write!(
+                f,
+                "force limit: |F| = {force_n:.3} N exceeds safety.max_force_n = {limit_n} N; the \
+                 robot was stopped and retracted. Check the plan's depths and the indenter"
+            ),
+            Trip::Saturated { force_n } => write!(
+                f,
+                "the F/T sensor saturated (|F| = {force_n:.3} N); the robot was stopped and \
+                 retracted. Reduce the depth or use a sensor with a larger range"
+            ),
+            Trip::FtLost(why) => write!(f, "the F/T stream ended: {why}"),
+            Trip::FtStalled { after_ms } => write!(
+                f,
+                "the F/T stream stalled: no sample for {after_ms:.0} ms; check the sensor's \
+                 cable and power"
+            ),
+            Trip::CameraLost(why) => write!(f, "the camera stream ended: {why}"),
+            Trip::CameraStalled { after_ms } => write!(
+                f,
+                "the camera stalled: no frame for {after_ms:.0} ms; check its USB cable, or \
+                 whether another program holds it"
+            ),
+        }
+    }
+}
+
+/// A frame ready to record.
+#[derive(Debug, Clone)]
+pub struct EncodedFrame {
+    /// The device's sequence number.
+    pub seq: u64,
+    /// Capture stamp on the host clock, ns: the source's mapped capture time (V4L2 buffer
+    /// stamps on `CLOCK_MONOTONIC`) when it has one, else the device's stamp.
+    pub stamp_ns: u64,
+    /// Host clock time the frame was received, ns.
+    pub host_rx_ns: u64,
+    /// Frames the sequence numbers say were lost just before this one.
+    pub dropped_before: u64,
+    /// Lossless PNG.
+    pub png: Vec<u8>,
+    /// Simulated rig only: the true capture time and the simulator's wrench then.
+    pub truth: Option<(u64, Wrench)>,
+}
+
+/// What the streams forward.
+#[derive(Debug, Clone)]
+pub enum Event {
+    Wrench(WrenchSample),
+    Frame(Box<EncodedFrame>),
+}
+
+/// Counters of the streams (the progress bar reads them).
+#[derive(Debug, Default)]
+pub struct StreamCounters {
+    pub wrench: AtomicU64,
+    pub frames: AtomicU64,
+    /// Frames the camera's sequence numbers say were lost.
+    pub frames_dropped: AtomicU64,
+    /// Frames that could not be converted or encoded (counted, not recorded).
+    pub frames_unencodable: AtomicU64,
+    /// Times a stream found the sync task's input full and waited.
+    pub backpressure_waits: AtomicU64,
+    /// Capture stamp of the newest frame handed to the sync task, ns (0: none yet).
+    pub newest_frame_stamp_ns: AtomicU64,
+    backpressure_warned: AtomicBool,
+}
+
+impl StreamCounters {
+    fn get(v: &AtomicU64) -> u64 {
+        v.load(Ordering::Relaxed)
+    }
+    pub fn wrench(&self) -> u64 {
+        Self::get(&self.wrench)
+    }
+    pub fn frames(&self) -> u64 {
+        Self::get(&self.frames)
+    }
+    pub fn frames_dropped(&self) -> u64 {
+        Self::get(&self.frames_dropped)
+    }
+}
+
+/// Settings of [`Streams::start`].
+#[derive(Debug, Clone)]
+pub struct StreamSettings {
+    /// `safety.max_force_n`: |F| above it trips.
+    pub max_force_n: f64,
+    /// No F/T sample for this long (clock time) trips.
+    pub ft_stall: Duration,
+    /// No frame for this long (clock time) trips.
+    pub camera_stall: Duration,
+    /// Capacity of the channel into the sync task.
+    pub capacity: usize,
+}
+
+/// The running streams.
+pub struct Streams {
+    trip_tx: Arc<watch::Sender<Option<Trip>>>,
+    counters: Arc<StreamCounters>,
+    tare: TareHandle,
+    tasks: Vec<JoinHandle<()>>,
+    encoder: Option<std::thread::JoinHandle<()>>,
+    stop: Arc<AtomicBool>,
+}
+
+/// Forward `ev` into `tx`, waiting (and counting it) when the channel is full. `false` when the
+/// receiver is gone.
+async fn forward(tx: &mpsc::Sender<Event>, ev: Event, counters: &StreamCounters) -> bool {
+    match tx.try_send(ev) {
+        Ok(()) => true,
+        Err(mpsc::error::TrySendError::Full(ev)) => {
+            note_backpressure(counters);
+            tx.send(ev).await.is_ok()
+        }
+        Err(mpsc::error::TrySendError::Closed(_)) => false,
+    }
+}
+
+fn note_backpressure(counters: &StreamCounters) {
+    counters.backpressure_waits.fetch_add(1, Ordering::Relaxed);
+    if !counters.backpressure_warned.swap(true, Ordering::Relaxed) {
+        tracing::warn!(
+            "recording back-pressure: the writer is behind the streams (slow disk?); the \
+             streams wait, their device buffers fill. Counted in the summary"
+        );
+    }
+}
+
+fn trip(tx: &watch::Sender<Option<Trip>>, t: Trip) {
+    tx.send_if_modified(|cur| {
+        // A fatal trip replaces a non-fatal one; otherwise the first one stands.
+        let replace = match cur {
+            None => true,
+            Some(c) => !c.is_fatal() && t.is_fatal(),
+        };
+        if replace {
+            tracing::warn!("safety trip: {t}");
+            *cur = Some(t);
+        }
+        replace
+    });
+}
+
+impl Streams {
+    /// Starts the tasks. Events go to `out` (the sync task's input).
+    pub fn start(
+        ft: FtStream,
+        camera: Option<Box<dyn FrameSource>>,
+        truth: Option<SharedWrenchSource>,
+        clock: Clock,
+        settings: StreamSettings,
+        out: mpsc::Sender<Event>,
+    ) -> Self {
+        let (trip_tx, _) = watch::channel(None);
+        let trip_tx = Arc::new(trip_tx);
+        let counters = Arc::new(StreamCounters::default());
+        let stop = Arc::new(AtomicBool::new(false));
+        let tare = ft.tare_handle();
+        let mut tasks = Vec::new();
+        tasks.push(tokio::spawn(ft_task(
+            ft,
+            clock.clone(),
+            settings.clone(),
+            out.clone(),
+            trip_tx.clone(),
+            counters.clone(),
+        )));
+        let mut encoder = None;
+        if let Some(cam) = camera {
+            let (enc_tx, enc_rx) = mpsc::channel::<(Frame, Option<(u64, Wrench)>)>(16);
+            let (c, o, s) = (counters.clone(), out.clone(), stop.clone());
+            encoder = std::thread::Builder::new()
+                .name("png-encoder".into())
+                .spawn(move || encoder_thread(enc_rx, o, c, s))
+                .map_err(|e| tracing::error!("cannot start the PNG encoder thread: {e}"))
+                .ok();
+            tasks.push(tokio::spawn(camera_task(
+                cam,
+                truth,
+                clock,
+                settings,
+                enc_tx,
+                trip_tx.clone(),
+                counters.clone(),
+            )));
+        }
+        Self {
+            trip_tx,
+            counters,
+            tare,
+            tasks,
+            encoder,
+            stop,
+        }
+    }
+
+    /// Watch the trips.
+    pub fn trips(&self) -> watch::Receiver<Option<Trip>> {
+        self.trip_tx.subscribe()
+    }
+
+    /// The current trip, if any.
+    pub fn current_trip(&self) -> Option<Trip> {
+        self.trip_tx.borrow().clone()
+    }
+
+    /// Clears a non-fatal trip (after the robot retracted); a fatal one stays and is returned.
+    pub fn clear_trip(&self) -> Option<Trip> {
+        self.trip_tx.send_if_modified(|cur| {
+            if cur.as_ref().is_some_and(|t| !t.is_fatal()) {
+                *cur = None;
+                true
+            } else {
+                false
+            }
+        });
+        self.current_trip()
+    }
+
+    /// Raises a trip from outside (tests, the orchestrator).
+    pub fn trip(&self, t: Trip) {
+        trip(&self.trip_tx, t);
+    }
+
+    pub fn counters(&self) -> &Arc<StreamCounters> {
+        &self.counters
+    }
+
+    /// Tare the F/T over the next `samples` samples (the indenter must be off the gel).
+    pub async fn tare(&self, samples: u64) -> Result<TareReport, crate::force::FtError> {
+        self.tare.tare(samples).await
+    }
+
+    /// Stops every task and the encoder.
+    pub async fn shutdown(mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in self.tasks.drain(..) {
+            t.abort();
+            let _ = t.await;
+        }
+        if let Some(e) = self.encoder.take() {
+            // The encoder ends once the camera task (its sender) is gone.
+            let _ = tokio::task::spawn_blocking(move || e.join()).await;
+        }
+    }
+}
+
+impl Drop for Streams {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+}
+
+async fn ft_task(
+    mut ft: FtStream,
+    clock: Clock,
+    settings: StreamSettings,
+    out: mpsc::Sender<Event>,
+    trip_tx: Arc<watch::Sender<Option<Trip>>>,
+    counters: Arc<StreamCounters>,
+) {
+    let mut stalled = false;
+    loop {
+        let next = tokio::select! {
+            s = ft.next() => s,
+            _ = clock.sleep(settings.ft_stall) => {
+                if !stalled {
+                    stalled = true;
+                    trip(&trip_tx, Trip::FtStalled { after_ms: settings.ft_stall.as_secs_f64() * 1e3 });
+                }
+                continue;
+            }
+        };
+        let Some(s) = next else {
+            let why = ft
+                .error()
+                .map(|e| e.to_string())
+                .unwrap_or_else(|| format!("{} stopped", ft.description));
+            trip(&trip_tx, Trip::FtLost(why));
+            return;
+        };
+        stalled = false;
+        counters.wrench.fetch_add(1, Ordering::Relaxed);
+        let f = s.wrench.force_n;
+        let norm = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        if norm > settings.max_force_n {
+            trip(
+                &trip_tx,
+                Trip::ForceLimit {
+                    force_n: norm,
+                    limit_n: settings.max_force_n,
+                },
+            );
+        } else if s.flags.contains(SampleFlags::SATURATED)
+            || s.flags.contains(SampleFlags::GAUGE_SATURATED)
+        {
+            trip(&trip_tx, Trip::Saturated { force_n: norm });
+        }
+        if !forward(&out, Event::Wrench(s), &counters).await {
+            return;
+        }
+    }
+}
+
+async fn camera_task(
+    mut cam: Box<dyn FrameSource>,
+    truth: Option<SharedWrenchSource>,
+    clock: Clock,
+    settings: StreamSettings,
+    enc: mpsc::Sender<(Frame, Option<(u64, Wrench)>)>,
+    trip_tx: Arc<watch::Sender<Option<Trip>>>,
+    counters: Arc<StreamCounters>,
+) {
+    let mut stalled = false;
+    loop {
+        let next = tokio::select! {
+            f = cam.next_frame() => f,
+            _ = clock.sleep(settings.camera_stall) => {
+                if !stalled {
+                    stalled = true;
+                    trip(&trip_tx, Trip::CameraStalled { after_ms: settings.camera_stall.as_secs_f64() * 1e3 });
+                }
+                continue;
+            }
+        };
+        let frame = match next {
+            Ok(f) => f,
+            Err(CameraError::BadFrame(why)) => {
+                tracing::warn!("camera: bad frame skipped: {why}");
+                counters.frames_unencodable.fetch_add(1, Ordering::Relaxed);
+                continue;
+            }
+            Err(e) => {
+                trip(&trip_tx, Trip::CameraLost(e.to_string()));
+                return;
+            }
+        };
+        stalled = false;
+        counters.frames.fetch_add(1, Ordering::Relaxed);
+        counters
+            .frames_dropped
+            .fetch_add(frame.dropped_before, Ordering::Relaxed);
+        let t = match (&truth, cam.true_capture_ns()) {
+            (Some(src), Some(t)) => Some((t, src.wrench_at(t))),
+            _ => None,
+        };
+        match enc.try_send((frame, t)) {
+            Ok(()) => {}
+            Err(mpsc::error::TrySendError::Full(item)) => {
+                note_backpressure(&counters);
+                if enc.send(item).await.is_err() {
+                    return;
+                }
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => return,
+        }
+    }
+}
+
+/// Encodes an RGB image as PNG with fast compression (still lossless).
+pub fn encode_png(img: &image::RgbImage) -> Result<Vec<u8>, image::ImageError> {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    let mut out = Vec::with_capacity(img.as_raw().len() / 2);
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Sub).write_image(
+        img.as_raw(),
+        img.width(),
+        img.height(),
+        image::ExtendedColorType::Rgb8,
+    )?;
+    Ok(out)
+}
+
+fn encoder_thread(
+    mut rx: mpsc::Receiver<(Frame, Option<(u64, Wrench)>)>,
+    out: mpsc::Sender<Event>,
+    counters: Arc<StreamCounters>,
+    stop: Arc<AtomicBool>,
+) {
+    while let Some((frame, truth)) = rx.blocking_recv() {
+        if stop.load(Ordering::Relaxed) {
+            return;
+        }
+        let png = match frame.to_rgb().map(|img| encode_png(&img)) {
+            Ok(Ok(png)) => png,
+            Ok(Err(e)) => {
+                tracing::warn!("frame {}: PNG encoding failed: {e}", frame.sequence);
+                counters.frames_unencodable.fetch_add(1, Ordering::Relaxed);
+                continue;
+            }
+            Err(e) => {
+                tracing::warn!("frame {}: cannot convert to RGB: {e}", frame.sequence);
+                counters.frames_unencodable.fetch_add(1, Ordering::Relaxed);
+                continue;
+            }
+        };
+        let stamp_ns = frame.capture_t_ns.unwrap_or(frame.device_ts_ns);
+        let ev = Event::Frame(Box::new(EncodedFrame {
+            seq: frame.sequence,
+            stamp_ns,
+            host_rx_ns: frame.received_t_ns,
+            dropped_before: frame.dropped_before,
+            png,
+            truth,
+        }));
+        let sent = match out.try_send(ev) {
+            Ok(()) => true,
+            Err(mpsc::error::TrySendError::Full(ev)) => {
+                note_backpressure(&counters);
+                out.blocking_send(ev).is_ok()
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => false,
+        };
+        if !sent {
+            return;
+        }
+        counters
+            .newest_frame_stamp_ns
+            .fetch_max(stamp_ns, Ordering::Relaxed);
+    }
+}
