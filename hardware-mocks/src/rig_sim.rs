@@ -210,9 +210,12 @@ struct Results {
 }
 
 /// Surface fields kept for [`ContactPhysics::field_at`] (the camera renders a frame a little
-/// after its capture time; this covers 128 physics periods of lag, 0.5 s at 250 Hz). Fields
-/// out of contact share one allocation.
-const FIELD_HISTORY: usize = 128;
+/// after its capture time): at most one per [`FIELD_SPACING_NS`], so 256 of them cover 0.5 s
+/// of lag however often the physics steps (on-demand steps follow the F/T's 1 kHz). Fields out
+/// of contact share one allocation.
+const FIELD_HISTORY: usize = 256;
+/// Least clock time between two kept fields (2 ms: 2 µm of travel at the plan's speeds).
+const FIELD_SPACING_NS: u64 = 2_000_000;
 
 struct Inner {
     surface_frame: Pose,
@@ -367,7 +370,12 @@ impl ContactPhysics {
             res.ring.pop_front();
         }
         res.ring.push_back((t_ns, w));
-        if let Some(f) = new_field {
+        if let Some(f) = new_field
+            && res
+                .fields
+                .back()
+                .is_none_or(|(t, _)| t_ns >= t + FIELD_SPACING_NS)
+        {
             if res.fields.len() == FIELD_HISTORY {
                 res.fields.pop_front();
             }

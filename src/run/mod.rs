@@ -1245,6 +1245,8 @@ pub async fn run(
 async fn govern(clock: Clock, max: f64, counters: Arc<streams::StreamCounters>, period_ns: f64) {
     let floor = max.min(0.25);
     let mut rate = clock.rate();
+    let mut last_stamp = 0;
+    let mut last_advance = std::time::Instant::now();
     loop {
         // Real time: the governor watches the machine, not the simulation.
         tokio::time::sleep(Duration::from_millis(20)).await;
@@ -1254,12 +1256,16 @@ async fn govern(clock: Clock, max: f64, counters: Arc<streams::StreamCounters>, 
         if newest == 0 {
             continue;
         }
+        if newest != last_stamp {
+            last_stamp = newest;
+            last_advance = std::time::Instant::now();
+        } else if last_advance.elapsed() > Duration::from_millis(300) {
+            // No frame for a long real time is not slowness but a stalled camera: the stall
+            // watch handles that, and slowing the clock would only delay its verdict.
+            continue;
+        }
         let lag = clock.now_ns().saturating_sub(newest) as f64 / period_ns;
-        // Far behind is not slowness but a stalled camera: the stall watch handles that, and
-        // slowing the clock would only delay its verdict.
-        let next = if lag > 25.0 {
-            rate
-        } else if lag > 8.0 {
+        let next = if lag > 8.0 {
             rate * 0.6
         } else if lag > 4.0 {
             rate * 0.9
