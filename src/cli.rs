@@ -140,7 +140,12 @@ fn run_command(args: &RunArgs) -> anyhow::Result<()> {
     };
     if loaded.config.robot.simulated {
         eprintln!(
-            "running on the simulated rig (simulated UR5e over loopback RTDE, clock ×{})",
+            "running on the simulated rig: a UR5e on loopback RTDE, a Nano17 ({}) and a GelSight \
+             camera driven by one contact scene; clock up to ×{} (slower while the camera cannot keep up)",
+            match args.sim_ft {
+                SimFt::Netft => "Net F/T on loopback UDP",
+                SimFt::Serial => "F/T controller on a pty",
+            },
             args.speed_factor
         );
     }
