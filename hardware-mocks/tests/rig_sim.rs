@@ -410,3 +410,50 @@ async fn sim_rig_runs_on_a_scaled_clock() {
     assert_eq!(rig.physics().wrench_at(clock.now_ns()), Wrench::default());
     rig.shutdown().await;
 }
+
+/// The camera renders a frame after its capture time: `field_at` must give the field of the
+/// pose at that time, not the newest one, and fields closer than 2 ms are not kept twice.
+#[test]
+fn field_at_gives_the_field_of_the_capture_time_not_the_newest() {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    let physics = ContactPhysics::new(
+        frame,
+        cfg.elastomer.clone(),
+        sphere(),
+        PhysicsConfig {
+            contact: sim::ContactModel::Winkler,
+            ..PhysicsConfig::default()
+        },
+        true,
+    )
+    .unwrap();
+    let depth_of = |t: u64| {
+        let (_, f) = physics.field_at(t).expect("a field");
+        -f.uz_mm.iter().copied().fold(0.0, f64::min)
+    };
+    let shallow = pose_above_surface(&frame, 0.0, 0.0, -0.2);
+    let deep = pose_above_surface(&frame, 0.0, 0.0, -0.6);
+    physics.update(10_000_000, &shallow).unwrap();
+    physics.update(20_000_000, &deep).unwrap();
+    // Within 1 ms of the last kept field: computed (wrench) but not kept as a field.
+    physics.update(20_500_000, &shallow).unwrap();
+    // The pressed-in depth of each field is the indentation (Winkler: the surface follows the
+    // indenter where it touches).
+    assert!(
+        (depth_of(15_000_000) - 0.2).abs() < 0.02,
+        "{}",
+        depth_of(15_000_000)
+    );
+    assert!(
+        (depth_of(20_000_000) - 0.6).abs() < 0.02,
+        "{}",
+        depth_of(20_000_000)
+    );
+    assert!(
+        (depth_of(25_000_000) - 0.6).abs() < 0.02,
+        "the 20.5 ms field was not kept"
+    );
+    // Before the first field: the oldest one.
+    assert!((depth_of(1) - 0.2).abs() < 0.02);
+}
