@@ -176,6 +176,31 @@ fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
             );
         }
     }
+    // The same verdicts from `rig dataset check` (the operator's tool), as JSON.
+    let check = Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["dataset", "check", "--json", "--max-error-pct", "2"])
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    assert!(
+        check.status.success(),
+        "rig dataset check failed:\n{}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&check.stdout).unwrap();
+    assert_eq!(report["complete"], 2, "{report:#}");
+    assert_eq!(report["frames_dropped_unexplained"], 0, "{report:#}");
+    assert_eq!(report["truth"]["frames_above_2pct"], 0, "{report:#}");
+    assert_eq!(report["truth"]["unpaired"], 0, "{report:#}");
+    assert!(
+        report["sync_error"]["p99_ns"].as_f64().unwrap() < 1e6,
+        "{report:#}"
+    );
+    assert!(
+        report["truth"]["worst_axis_max_pct"].as_f64().unwrap() < 2.0,
+        "{report:#}"
+    );
+
     // The acceptance line: within 2 % of full range (here far inside it).
     assert!(
         worst_fraction < 0.02,

@@ -13,6 +13,8 @@ use std::fs::{self, File, OpenOptions};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use rig_core::wrench::Wrench;
+
 use super::channels::{self, CHANNELS, PairedMsg, Record, TOPIC_IMAGE, TOPIC_PAIRED};
 use super::manifest::Counts;
 
@@ -295,8 +297,31 @@ pub struct FileContents {
     pub wrench_seqs: Vec<i64>,
     /// Log times of wrench messages, ns.
     pub wrench_times_ns: Vec<u64>,
+    /// Every paired-wrench message in file order: its frame and its wrench (absent when the
+    /// pairing was refused).
+    pub paired: Vec<PairedRead>,
+    /// Simulated rig only: every true-wrench message in file order (one per frame).
+    pub truth: Vec<TruthRead>,
     /// The MCAP summary's message count per topic (cross-check of the linear read).
     pub summary_counts: BTreeMap<String, u64>,
+}
+
+/// One `/sync/paired_wrench` message as read back: the frame it belongs to and its wrench.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct PairedRead {
+    pub frame_seq: i64,
+    /// Force, N (`None` when the pairing was refused).
+    pub force_n: Option<[f64; 3]>,
+    /// Torque, N·mm (`None` when the pairing was refused).
+    pub torque_nmm: Option<[f64; 3]>,
+}
+
+/// One `/sim/true_wrench` message as read back: the simulator's wrench at the frame's true
+/// capture time.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct TruthRead {
+    pub frame_seq: i64,
+    pub wrench: Wrench,
 }
 
 /// Read a trajectory file completely: every record parsed, every message decoded.
@@ -359,6 +384,11 @@ pub fn read_bytes(bytes: &[u8]) -> Result<FileContents, String> {
                     out.sync_errors_ns.push(e);
                 }
                 *out.paired_status.entry(m.status).or_default() += 1;
+                out.paired.push(PairedRead {
+                    frame_seq: m.frame_seq,
+                    force_n: m.force_n,
+                    torque_nmm: m.torque_nmm,
+                });
                 out.counts.paired += 1;
             }
             channels::TOPIC_STAGE => {
@@ -366,7 +396,14 @@ pub fn read_bytes(bytes: &[u8]) -> Result<FileContents, String> {
                 out.counts.stages += 1;
             }
             channels::TOPIC_TRUTH => {
-                let _: channels::TruthMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
+                let m: channels::TruthMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
+                out.truth.push(TruthRead {
+                    frame_seq: m.frame_seq,
+                    wrench: Wrench {
+                        force_n: m.force_n,
+                        torque_nmm: m.torque_nmm,
+                    },
+                });
                 out.counts.truth += 1;
             }
             other => return Err(format!("unexpected channel {other}")),

@@ -26,6 +26,9 @@ pub struct SyntheticSpec {
     /// Image size.
     pub width: u32,
     pub height: u32,
+    /// Also record the synthetic true wrench at each recorded frame's capture time on
+    /// `/sim/true_wrench`, as the simulated rig does (default: no truth channel, as a lab rig).
+    pub truth: bool,
 }
 
 impl Default for SyntheticSpec {
@@ -36,6 +39,7 @@ impl Default for SyntheticSpec {
             drop_frames: Vec::new(),
             width: 16,
             height: 12,
+            truth: false,
         }
     }
 }
@@ -128,6 +132,14 @@ pub async fn record_one(
                     png: png_frame(spec.width, spec.height, seq),
                 })
                 .await?;
+                if spec.truth {
+                    rec.send(Record::Truth {
+                        frame_seq: seq as i64,
+                        t_ns,
+                        wrench,
+                    })
+                    .await?;
+                }
             }
         }
         for p in pairer.poll() {
