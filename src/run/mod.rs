@@ -1140,6 +1140,10 @@ pub async fn run(
         tare_timeout: Duration::from_secs_f64(5.0 * speed),
         stage_tx: &stage_tx,
     };
+    if ctx.tare_samples == 0 {
+        // No tare asked for: the readings are taken as they are, limit included.
+        streams.arm_force_limit();
+    }
     let t0 = clock.now_ns();
     let transit_speed = config.plan.up.speed_mm_s * 1e-3;
     let transit_accel = config.plan.up.accel_mm_s2 * 1e-3;

@@ -1,7 +1,8 @@
 //! The F/T and camera streams of a run, each read on its own task for the whole run.
 //!
 //! - The **F/T task** reads every [`WrenchSample`] of the [`FtStream`], checks it against the
-//!   force limit and forwards it to the sync task. A force above `safety.max_force_n`, a
+//!   force limit (from the first tare on: before it the reading is mostly the sensor's bias)
+//!   and forwards it to the sync task. A force above `safety.max_force_n`, a
 //!   saturated sensor, the stream ending (a closed port, a dead link) or no sample within the
 //!   stall timeout raises a [`Trip`], which the motion watches.
 //! - The **camera task** reads every frame of the [`FrameSource`], looks up the simulator's true
@@ -119,6 +120,9 @@ pub struct StreamCounters {
     pub backpressure_waits: AtomicU64,
     /// Capture stamp of the newest frame handed to the sync task, ns (0: none yet).
     pub newest_frame_stamp_ns: AtomicU64,
+    /// The force limit applies from the first tare on: before it, the reading holds the
+    /// sensor's bias (on a Nano17, up to a few N), not a contact force.
+    force_limit_armed: AtomicBool,
     backpressure_warned: AtomicBool,
 }
 
@@ -283,9 +287,20 @@ impl Streams {
         &self.counters
     }
 
+    /// Applies the force limit from now on (without a tare: the config asks for none).
+    pub fn arm_force_limit(&self) {
+        self.counters
+            .force_limit_armed
+            .store(true, Ordering::Release);
+    }
+
     /// Tare the F/T over the next `samples` samples (the indenter must be off the gel).
     pub async fn tare(&self, samples: u64) -> Result<TareReport, crate::force::FtError> {
-        self.tare.tare(samples).await
+        let r = self.tare.tare(samples).await?;
+        self.counters
+            .force_limit_armed
+            .store(true, Ordering::Release);
+        Ok(r)
     }
 
     /// Stops every task and the encoder.
@@ -343,7 +358,8 @@ async fn ft_task(
         counters.wrench.fetch_add(1, Ordering::Relaxed);
         let f = s.wrench.force_n;
         let norm = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
-        if norm > settings.max_force_n {
+        let armed = counters.force_limit_armed.load(Ordering::Acquire);
+        if armed && norm > settings.max_force_n {
             trip(
                 &trip_tx,
                 Trip::ForceLimit {

@@ -1,0 +1,283 @@
+//! Faults during `rig run` on the simulated rig, each injected into a running trajectory
+//! (`--sim-fault`) or provoked by the config: the run ends in the documented state with a clear
+//! message, no completed trajectory is lost, no half-written file is left under a final name,
+//! and `--resume` then completes the dataset.
+//!
+//! Documented states: a protective stop, an RTDE link drop or a force over the limit fails the
+//! trajectory; with `safety.on_failure = "stop"` the run stops there (the later trajectories stay
+//! pending), with `"continue"` the rig recovers (a protective stop only after UR's 5 s unlock
+//! delay), retracts and goes on. A lost or stalled stream (F/T port closed, camera stalled) or
+//! a recording error (disk full) always stops the run.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::Mutex;
+
+use rig::record::{Manifest, Status, final_name, read_file};
+
+/// Two cores: one rig run at a time.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+const T1: &str = "p0-d0.2-a000";
+const T2: &str = "p0-d0.2-a030";
+const T3: &str = "p0-d0.2-a060";
+
+/// The shipped simulated config with `edits` applied (exact line replacements).
+fn config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
+    let mut text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/rig-configs/sim-source.toml"
+    ))
+    .unwrap();
+    for (from, to) in edits {
+        assert!(text.contains(from), "the shipped config has no {from:?}");
+        text = text.replace(from, to);
+    }
+    let path = dir.join(format!("rig-{}.toml", edits.len()));
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+const CONTINUE: (&str, &str) = ("on_failure = \"stop\"", "on_failure = \"continue\"");
+
+fn rig_run(cfg: &Path, out: &Path, limit: usize, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["run", "--indenter", "cone", "--config"])
+        .arg(cfg)
+        .arg("--out")
+        .arg(out)
+        .args(["--limit", &limit.to_string()])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "status {:?}\n--- stdout\n{}\n--- stderr\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// The state every fault must leave: `failed` failed with a reason containing `why`, every
+/// trajectory in `complete` complete with a readable file whose counts match the manifest,
+/// every one in `pending` still pending; no partial files, no final file for the failed one.
+fn assert_state(dir: &Path, failed: &str, why: &str, complete: &[&str], pending: &[&str]) {
+    let m = Manifest::load(dir).unwrap();
+    let e = m.entry(failed).unwrap();
+    assert_eq!(e.status, Status::Failed, "{e:?}");
+    let reason = e.reason.as_deref().unwrap_or_default();
+    assert!(
+        reason.to_lowercase().contains(&why.to_lowercase()),
+        "{failed}: reason {reason:?} does not mention {why:?}"
+    );
+    assert!(!dir.join(final_name(failed)).exists());
+    for id in complete {
+        let e = m.entry(id).unwrap();
+        assert_eq!(e.status, Status::Complete, "{e:?}");
+        let c = read_file(&dir.join(final_name(id))).unwrap();
+        assert_eq!(c.counts, e.counts, "{id}");
+        assert!(c.counts.frames > 100, "{id}: {:?}", c.counts);
+    }
+    for id in pending {
+        assert_eq!(m.entry(id).unwrap().status, Status::Pending, "{id}");
+    }
+    for f in std::fs::read_dir(dir).unwrap() {
+        let name = f.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!name.ends_with(".partial"), "left behind: {name}");
+    }
+}
+
+/// `--resume` without the fault completes the dataset, and `rig dataset check` agrees.
+fn resume_completes(cfg: &Path, dir: &Path, limit: usize, extra: &[&str]) {
+    let out = rig_run(cfg, dir, limit, &[&["--resume"], extra].concat());
+    assert!(out.status.success(), "resume failed:\n{}", text(&out));
+    let check = Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["dataset", "check"])
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(check.status.success(), "{}", text(&check));
+}
+
+fn fault(kind: &str, id: &str, stage_ms: &str) -> String {
+    format!("--sim-fault={kind}@{id}/{stage_ms}")
+}
+
+#[test]
+fn a_protective_stop_mid_shear_stops_the_run_and_asks_for_the_pendant() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config(tmp.path(), &[]);
+    let dir = tmp.path().join("run");
+    let out = rig_run(&cfg, &dir, 3, &[&fault("protective-stop", T2, "shear+300")]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let all = text(&out);
+    assert!(
+        all.contains("safety stop") && all.contains("pendant"),
+        "{all}"
+    );
+    assert!(all.contains(T2), "{all}");
+    assert_state(&dir, T2, "protective stop", &[T1], &[T3]);
+    resume_completes(&cfg, &dir, 3, &[]);
+}
+
+#[test]
+fn with_continue_a_protective_stop_is_recovered_and_the_run_goes_on() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config(tmp.path(), &[CONTINUE]);
+    let dir = tmp.path().join("run");
+    let out = rig_run(&cfg, &dir, 3, &[&fault("protective-stop", T2, "shear+300")]);
+    assert!(
+        !out.status.success(),
+        "a failed trajectory fails the command"
+    );
+    assert!(
+        text(&out).contains("1 trajectories failed"),
+        "{}",
+        text(&out)
+    );
+    assert_state(&dir, T2, "protective stop", &[T1, T3], &[]);
+    resume_completes(&cfg, &dir, 3, &[]);
+}
+
+#[test]
+fn an_rtde_link_drop_fails_the_trajectory_and_the_rig_reconnects() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config(tmp.path(), &[CONTINUE]);
+    let dir = tmp.path().join("run");
+    let out = rig_run(&cfg, &dir, 3, &[&fault("rtde-drop", T2, "shear+300")]);
+    assert!(!out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("RTDE link lost"), "{}", text(&out));
+    // The link came back: the next trajectory was recorded over the new connection.
+    assert_state(&dir, T2, "RTDE link lost", &[T1, T3], &[]);
+    resume_completes(&cfg, &dir, 3, &[]);
+}
+
+#[test]
+fn the_ft_pty_closing_stops_the_run() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    // Even with continue: nothing can be recorded without the F/T.
+    let cfg = config(tmp.path(), &[CONTINUE]);
+    let dir = tmp.path().join("run");
+    let out = rig_run(
+        &cfg,
+        &dir,
+        3,
+        &["--sim-ft", "serial", &fault("ft-unplug", T2, "down+500")],
+    );
+    assert!(!out.status.success(), "{}", text(&out));
+    let all = text(&out);
+    assert!(all.contains("F/T"), "{all}");
+    assert!(all.contains("nothing more can be recorded"), "{all}");
+    assert_state(&dir, T2, "F/T", &[T1], &[T3]);
+    resume_completes(&cfg, &dir, 3, &["--sim-ft", "serial"]);
+}
+
+#[test]
+fn a_camera_stall_mid_shear_stops_the_run() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config(tmp.path(), &[CONTINUE]);
+    let dir = tmp.path().join("run");
+    let out = rig_run(&cfg, &dir, 3, &[&fault("camera-stall", T2, "shear+200")]);
+    assert!(!out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("camera stalled"), "{}", text(&out));
+    assert_state(&dir, T2, "camera stalled", &[T1], &[T3]);
+    resume_completes(&cfg, &dir, 3, &[]);
+}
+
+#[test]
+fn a_force_over_the_limit_fails_the_trajectory_and_the_run_goes_on() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    // The deepest layer: the cone at 0.8 mm pushes about 1.8 N in the run's Winkler physics
+    // (0.4 mm deep: about 0.5 N); the limit sits between.
+    let cfg = config(
+        tmp.path(),
+        &[
+            ("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.4, 0.8]"),
+            ("max_force_n = 20.0", "max_force_n = 1.0"),
+            CONTINUE,
+        ],
+    );
+    let dir = tmp.path().join("run");
+    // The plan order is point, depth, direction: 12 at 0.4 mm, then 0.8 mm.
+    let out = rig_run(&cfg, &dir, 14, &[]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let all = text(&out);
+    assert!(all.contains("force limit"), "{all}");
+    let m = Manifest::load(&dir).unwrap();
+    let ids: Vec<&str> = m.trajectories.iter().map(|t| t.id.as_str()).collect();
+    let shallow: Vec<&str> = ids.iter().copied().filter(|i| i.contains("d0.4")).collect();
+    let deep: Vec<&str> = ids.iter().copied().filter(|i| i.contains("d0.8")).collect();
+    assert_eq!((shallow.len(), deep.len()), (12, 2), "{ids:?}");
+    // Both deep ones tripped (with continue, the second after a retract), named with the
+    // measured force; the shallow ones are complete.
+    for id in &deep {
+        let e = m.entry(id).unwrap();
+        assert_eq!(e.status, Status::Failed, "{e:?}");
+        let r = e.reason.as_deref().unwrap();
+        assert!(
+            r.contains("force limit") && r.contains("max_force_n = 1"),
+            "{r}"
+        );
+    }
+    assert_state(&dir, deep[0], "exceeds safety.max_force_n", &shallow, &[]);
+}
+
+#[test]
+fn a_full_disk_fails_the_trajectory_and_keeps_the_completed_ones() {
+    let _g = serial();
+    let probe = Command::new("unshare")
+        .args(["-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"])
+        .status();
+    assert!(
+        probe.is_ok_and(|s| s.success()),
+        "this test needs `unshare -rm` and tmpfs mounts (util-linux, user namespaces)"
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config(tmp.path(), &[CONTINUE]);
+    let mnt = tmp.path().join("small");
+    std::fs::create_dir(&mnt).unwrap();
+    let copy = tmp.path().join("copy");
+    let rc = tmp.path().join("rc");
+    let log = tmp.path().join("log");
+    // A trajectory file is about 4.8 MB: 7 MB holds the first and not the second. The tmpfs
+    // lives only in the namespace, so the result is copied out before it ends.
+    let script = format!(
+        "mount -t tmpfs -o size=7m tmpfs {mnt} && \
+         {rig} run --indenter cone --config {cfg} --out {mnt}/run --limit 3 > {log} 2>&1; \
+         echo $? > {rc}; cp -a {mnt}/run {copy}",
+        mnt = mnt.display(),
+        rig = env!("CARGO_BIN_EXE_rig"),
+        cfg = cfg.display(),
+        log = log.display(),
+        rc = rc.display(),
+        copy = copy.display(),
+    );
+    let status = Command::new("unshare")
+        .args(["-rm", "sh", "-c", &script])
+        .status()
+        .unwrap();
+    assert!(status.success(), "the namespace script failed");
+    let log = std::fs::read_to_string(&log).unwrap();
+    let rc: i32 = std::fs::read_to_string(&rc)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    assert_ne!(rc, 0, "{log}");
+    assert!(log.contains("No space left on device"), "{log}");
+    assert!(log.contains("the recording failed"), "{log}");
+    assert_state(&copy, T2, "No space left on device", &[T1], &[T3]);
+}
