@@ -9,8 +9,11 @@ fn main() -> ExitCode {
     // Usage errors (and --help / --version) exit here, with status 2 for errors.
     let cli = rig::cli::Cli::parse();
 
-    // Logs go to stderr so stdout stays clean for --json; RUST_LOG overrides the default `info`.
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    // Logs go to stderr so stdout stays clean for --json; RUST_LOG overrides the default: the
+    // rig at `info`, the simulated devices' own chatter (connections, program starts) only from
+    // `warn` (RUST_LOG=info shows it).
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new("info,hardware_mocks=warn"));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
