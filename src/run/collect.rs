@@ -34,7 +34,10 @@ use super::streams::Event;
 use crate::plan::StageName;
 use crate::record::{Record, Recorder};
 use crate::robot::RobotState;
-use crate::sync::{DeviceStamp, FrameIn, PairedFrame, Pairer, PairerConfig, SyncStatus, WrenchIn};
+use crate::sync::{
+    ClockEstimator, DeviceStamp, EstimatorConfig, FrameIn, PairedFrame, Pairer, PairerConfig,
+    SyncStatus, WrenchIn,
+};
 
 /// Commands of the orchestrator.
 #[derive(Debug)]
@@ -87,6 +90,8 @@ pub struct SyncSettings {
     /// Whether frames come: the end of a trajectory then also waits for a frame captured
     /// after it, so every frame captured during it has arrived.
     pub camera: bool,
+    /// The estimator mapping the controller's RTDE `timestamp` onto the host clock.
+    pub rtde_clock: EstimatorConfig,
 }
 
 struct Recording {
@@ -130,6 +135,7 @@ struct SyncTask {
     cur: Option<Recording>,
     newest_wrench_ns: u64,
     newest_frame_ns: u64,
+    rtde_clock: ClockEstimator,
 }
 
 /// Spawns the sync task. It ends when `cmds` closes.
@@ -147,10 +153,11 @@ pub fn spawn(
         live,
         pairer: Pairer::new(settings.pairer.clone()),
         clock,
-        settings,
         cur: None,
         newest_wrench_ns: 0,
         newest_frame_ns: 0,
+        rtde_clock: ClockEstimator::new(settings.rtde_clock.clone()),
+        settings,
     };
     tokio::spawn(task.run(events, samples, cmds))
 }
@@ -251,20 +258,33 @@ impl SyncTask {
         }
     }
 
+    /// The host time of a state: its controller `timestamp` mapped by the estimator (the
+    /// time the controller sampled it, free of the delivery's jitter), else its arrival.
+    fn state_time(&mut self, s: &RobotState) -> u64 {
+        if !(s.timestamp_s.is_finite() && s.timestamp_s >= 0.0 && s.timestamp_s < 9.0e9) {
+            return s.t_host_ns;
+        }
+        let dev = (s.timestamp_s * 1e9).round() as i64;
+        self.rtde_clock.observe(dev, s.t_host_ns);
+        match self.rtde_clock.to_host(dev) {
+            Some(t) if t.is_finite() && t >= 0.0 => (t.round() as u64).min(s.t_host_ns),
+            _ => s.t_host_ns,
+        }
+    }
+
     async fn pose(&mut self, s: &RobotState) {
-        self.pairer.push_pose(s.t_host_ns as f64, s.actual_tcp_pose);
+        let t = self.state_time(s);
+        self.pairer.push_pose(t as f64, s.actual_tcp_pose);
         let write = self.cur.as_ref().is_some_and(|r| {
-            r.started_ns.is_some_and(|t0| s.t_host_ns >= t0)
-                && r.end
-                    .as_ref()
-                    .is_none_or(|(t_end, _)| s.t_host_ns <= *t_end)
+            r.started_ns.is_some_and(|t0| t >= t0)
+                && r.end.as_ref().is_none_or(|(t_end, _)| t <= *t_end)
         });
         if write {
             if let Some(r) = &mut self.cur {
                 r.stats.poses += 1;
             }
             self.write(Record::Pose {
-                t_ns: s.t_host_ns,
+                t_ns: t,
                 pose: s.actual_tcp_pose,
             })
             .await;

@@ -26,8 +26,9 @@
 //!
 //! # Time
 //!
-//! Every stream is stamped on the rig's clock when it arrives. The F/T's sample counter is
-//! mapped to the host clock by the pairer's offset-and-drift estimator; camera frames carry
+//! Every stream is stamped on the rig's clock when it arrives. The robot's states are placed at
+//! their controller `timestamp` mapped to the host clock by an offset-and-drift estimator (free
+//! of the delivery's jitter); the F/T's sample counter likewise, by the pairer's estimator; camera frames carry
 //! host-clock stamps (V4L2 `CLOCK_MONOTONIC` buffer stamps mapped by the V4L2 source; the
 //! simulated camera's stamps are on the shared clock), so the frame time is the stamp less the
 //! configured exposure latency. Each frame's wrench is interpolated (cubic) at that time, and
@@ -1082,6 +1083,11 @@ pub async fn run(
             // Longer than the stall limits, so a stalled stream trips first and is named.
             end_timeout: Duration::from_secs_f64(2.0 * speed),
             camera: config.camera.is_some(),
+            // The controller's clock is a real-time clock: no jumps from delivery stalls.
+            rtde_clock: crate::sync::EstimatorConfig {
+                jump_tolerance_ns: 1e9 * speed,
+                ..crate::sync::EstimatorConfig::default()
+            },
         },
         clock.clone(),
         ev_rx,
