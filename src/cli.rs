@@ -85,6 +85,10 @@ pub struct RunArgs {
     /// camera-stall; MS is clock time after the stage starts. Repeatable.
     #[arg(long, value_name = "FAULT")]
     pub sim_fault: Vec<crate::run::SimFault>,
+    /// Serve a live view for the Foxglove app (Foxglove WebSocket) on this loopback address
+    /// while the run records (default 127.0.0.1:8765).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub live: Option<std::net::SocketAddr>,
 }
 
 /// The simulated Nano17's front end (`rig run --sim-ft`).
@@ -162,7 +166,36 @@ fn run_command(args: &RunArgs) -> anyhow::Result<()> {
         ..crate::run::RunOptions::new(out.clone())
     };
     let runtime = tokio::runtime::Runtime::new()?;
-    let summary = runtime.block_on(crate::run::run(&loaded.config, &indenter, &opts))?;
+    let summary = runtime.block_on(async {
+        let mut opts = opts;
+        let live = match args.live {
+            Some(addr) => {
+                let live = std::sync::Arc::new(
+                    crate::live::LiveView::start(addr)
+                        .await
+                        .map_err(|e| anyhow::anyhow!("cannot start the live view on {addr}: {e}"))?,
+                );
+                eprintln!(
+                    "live view: in the Foxglove app, open a Foxglove WebSocket connection to ws://{}",
+                    live.addr()
+                );
+                let tap = live.clone();
+                opts.tap = Some(std::sync::Arc::new(move |r: &crate::record::Record| tap.publish(r)));
+                Some(live)
+            }
+            None => None,
+        };
+        let summary = crate::run::run(&loaded.config, &indenter, &opts).await;
+        if let Some(live) = live {
+            let s = live.stats();
+            tracing::info!(
+                "live view: {} messages sent, {} dropped for slow clients",
+                s.sent,
+                s.dropped
+            );
+        }
+        summary
+    })?;
     print!("{}", summary.report());
     let report = crate::dataset::check(&out);
     if report.ok() {

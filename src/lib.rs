@@ -14,6 +14,7 @@ pub mod camera;
 pub mod cli;
 pub mod dataset;
 pub mod force;
+pub mod live;
 pub mod plan;
 pub mod record;
 pub mod robot;
