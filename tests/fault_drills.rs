@@ -15,6 +15,8 @@ use std::sync::Mutex;
 
 use rig::record::{Manifest, Status, final_name, read_file};
 
+mod common;
+
 /// Two cores: one rig run at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -28,18 +30,7 @@ const T3: &str = "p0-d0.2-a060";
 
 /// The shipped simulated config with `edits` applied (exact line replacements).
 fn config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
-    let mut text = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/rig-configs/sim-source.toml"
-    ))
-    .unwrap();
-    for (from, to) in edits {
-        assert!(text.contains(from), "the shipped config has no {from:?}");
-        text = text.replace(from, to);
-    }
-    let path = dir.join(format!("rig-{}.toml", edits.len()));
-    std::fs::write(&path, text).unwrap();
-    path
+    common::edited_sim_config(dir, &format!("rig-{}.toml", edits.len()), edits)
 }
 
 const CONTINUE: (&str, &str) = ("on_failure = \"stop\"", "on_failure = \"continue\"");
@@ -57,12 +48,7 @@ fn rig_run(cfg: &Path, out: &Path, limit: usize, extra: &[&str]) -> Output {
 }
 
 fn text(out: &Output) -> String {
-    format!(
-        "status {:?}\n--- stdout\n{}\n--- stderr\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
+    common::output_text(out)
 }
 
 /// The state every fault must leave: `failed` failed with a reason containing `why`, every

@@ -13,6 +13,8 @@ use std::process::Command;
 
 use rig::record::Manifest;
 
+mod common;
+
 /// The simulated Nano17's force noise, σ per axis: its resolution, 1/160 N.
 const FORCE_NOISE_N: f64 = 1.0 / 160.0;
 
@@ -71,18 +73,11 @@ fn read(path: &Path) -> Frames {
 #[test]
 fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
     let tmp = tempfile::tempdir().unwrap();
-    let shipped = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/rig-configs/sim-source.toml"
-    ))
-    .unwrap();
-    let cfg_text = shipped.replace("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.8]");
-    assert_ne!(
-        cfg_text, shipped,
-        "the depth line of the shipped config changed"
+    let cfg = common::edited_sim_config(
+        tmp.path(),
+        "deep.toml",
+        &[("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.8]")],
     );
-    let cfg = tmp.path().join("deep.toml");
-    std::fs::write(&cfg, cfg_text).unwrap();
     let out_dir = tmp.path().join("run");
     let out = Command::new(env!("CARGO_BIN_EXE_rig"))
         .args(["run", "--indenter", "cone", "--limit", "2", "--config"])

@@ -17,6 +17,8 @@ use std::time::{Duration, Instant};
 
 use rig::record::{Counts, Manifest, Status, final_name, read_file};
 
+mod common;
+
 /// The rig runs of this file share two CPU cores badly: one at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -27,10 +29,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
 /// The built-in simulated rig's config, as shipped (the run scales its watchdog to the
 /// simulated clock's speed, so ×20 needs no relaxed settings).
 fn config() -> PathBuf {
-    PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/rig-configs/sim-source.toml"
-    ))
+    common::sim_config()
 }
 
 fn rig_run(cfg: &Path, out: &Path, limit: usize, extra: &[&str]) -> Command {
@@ -45,12 +44,7 @@ fn rig_run(cfg: &Path, out: &Path, limit: usize, extra: &[&str]) -> Command {
 }
 
 fn text(out: &Output) -> String {
-    format!(
-        "status {:?}\n--- stdout\n{}\n--- stderr\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
+    common::output_text(out)
 }
 
 fn run_ok(cmd: &mut Command) -> Output {
@@ -269,14 +263,11 @@ fn resume_refuses_another_indenter_or_config() {
     assert!(stderr.contains("indenter `cone`"), "{}", text(&out));
 
     // Another shear distance: the same indenter, a different [plan].
-    let shipped = std::fs::read_to_string(&cfg).unwrap();
-    let other = shipped.replacen("shear_distance_mm = 1.0", "shear_distance_mm = 0.8", 1);
-    assert_ne!(
-        shipped, other,
-        "sim-source.toml has no `shear_distance_mm = 1.0` line"
+    let other_cfg = common::edited_sim_config(
+        tmp.path(),
+        "other.toml",
+        &[("shear_distance_mm = 1.0", "shear_distance_mm = 0.8")],
     );
-    let other_cfg = tmp.path().join("other.toml");
-    std::fs::write(&other_cfg, other).unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_rig"))
         .args(["run", "--indenter", "cone", "--resume", "--config"])
         .arg(&other_cfg)

@@ -45,29 +45,12 @@ pub struct RunBenchArgs {
     pub keep: bool,
 }
 
-/// Nearest-rank percentile (ns → ms).
-fn pct_ms(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1] * 1e-6
-}
-
 /// The table of a run.
 pub fn table(s: &RunSummary) -> String {
     let n = s.trajectories.len();
-    let frames: u64 = s.trajectories.iter().map(|t| t.stats.frames).sum();
-    let mut sync: Vec<f64> = s
-        .trajectories
-        .iter()
-        .flat_map(|t| t.stats.sync_errors_ns.iter().copied())
-        .collect();
-    let truth = s
-        .trajectories
-        .iter()
-        .filter_map(|t| t.stats.truth_max_error_n)
-        .fold(0.0, f64::max);
+    let frames = s.frames();
+    let (p50, p99) = s.sync_error_p50_p99_ns();
+    let truth = s.truth_max_error_n().unwrap_or(0.0);
     let rows = [
         ("trajectories", format!("{n} ({} failed)", s.failed.len())),
         ("simulated time", format!("{:.1} s", s.clock_time_s)),
@@ -86,11 +69,7 @@ pub fn table(s: &RunSummary) -> String {
         ),
         (
             "sync error p50 / p99",
-            format!(
-                "{:.3} / {:.3} ms",
-                pct_ms(&mut sync, 0.5),
-                pct_ms(&mut sync, 0.99)
-            ),
+            format!("{:.3} / {:.3} ms", p50 * 1e-6, p99 * 1e-6),
         ),
         ("max |paired − true| force", format!("{truth:.4} N")),
         (

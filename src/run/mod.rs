@@ -1054,7 +1054,6 @@ pub async fn run(
             // Stall limits in real time (a busy machine), expressed in clock time.
             ft_stall: Duration::from_secs_f64(0.5 * speed),
             camera_stall: Duration::from_secs_f64((0.5f64).max(10.0 / camera_fps) * speed),
-            capacity: 8192,
         },
         ev_tx,
     );
@@ -1387,16 +1386,36 @@ fn progress_message(s: &TrajStats, c: &streams::StreamCounters) -> String {
     )
 }
 
-/// Nearest-rank percentile of `v` (sorted in place), ns.
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
-}
-
 impl RunSummary {
+    /// Sync error of every paired frame recorded in this run: nearest-rank p50 and p99, ns;
+    /// NaN when no frame was paired (no camera), not a zero statistic.
+    pub fn sync_error_p50_p99_ns(&self) -> (f64, f64) {
+        let all: Vec<f64> = self
+            .trajectories
+            .iter()
+            .flat_map(|t| t.stats.sync_errors_ns.iter().copied())
+            .collect();
+        let st = crate::dataset::Stats::of(&all);
+        if st.n == 0 {
+            (f64::NAN, f64::NAN)
+        } else {
+            (st.p50_ns, st.p99_ns)
+        }
+    }
+
+    /// Largest |paired − true| force component over the run (simulated rig only).
+    pub fn truth_max_error_n(&self) -> Option<f64> {
+        self.trajectories
+            .iter()
+            .filter_map(|t| t.stats.truth_max_error_n)
+            .reduce(f64::max)
+    }
+
+    /// Frames recorded in this run.
+    pub fn frames(&self) -> u64 {
+        self.trajectories.iter().map(|t| t.stats.frames).sum()
+    }
+
     /// Operator-facing end-of-run report.
     pub fn report(&self) -> String {
         let done = self.trajectories.len();
@@ -1412,7 +1431,7 @@ impl RunSummary {
             .fold(0.0, f64::max);
         let sum =
             |f: fn(&TrajStats) -> u64| self.trajectories.iter().map(|t| f(&t.stats)).sum::<u64>();
-        let frames = sum(|s| s.frames);
+        let frames = self.frames();
         let wrench = sum(|s| s.wrench);
         let poses = sum(|s| s.poses);
         let dropped = sum(|s| s.frames_dropped);
@@ -1421,17 +1440,8 @@ impl RunSummary {
             sum(|s| s.paired_held),
             sum(|s| s.paired_refused),
         );
-        let mut sync: Vec<f64> = self
-            .trajectories
-            .iter()
-            .flat_map(|t| t.stats.sync_errors_ns.iter().copied())
-            .collect();
-        let (p50, p99) = (percentile(&mut sync, 0.5), percentile(&mut sync, 0.99));
-        let truth = self
-            .trajectories
-            .iter()
-            .filter_map(|t| t.stats.truth_max_error_n)
-            .fold(None, |m: Option<f64>, e| Some(m.unwrap_or(0.0).max(e)));
+        let (p50, p99) = self.sync_error_p50_p99_ns();
+        let truth = self.truth_max_error_n();
         let mut s = format!(
             "{} rig: {done} trajectories recorded, {} failed, {} skipped (already complete), \
              {} not attempted; {:.1} s of {} time in {:.1} s\n",

@@ -150,8 +150,6 @@ pub struct StreamSettings {
     pub ft_stall: Duration,
     /// No frame for this long (clock time) trips.
     pub camera_stall: Duration,
-    /// Capacity of the channel into the sync task.
-    pub capacity: usize,
 }
 
 /// The running streams.
@@ -166,7 +164,7 @@ pub struct Streams {
 
 /// Forward `ev` into `tx`, waiting (and counting it) when the channel is full. `false` when the
 /// receiver is gone.
-async fn forward(tx: &mpsc::Sender<Event>, ev: Event, counters: &StreamCounters) -> bool {
+async fn forward<T>(tx: &mpsc::Sender<T>, ev: T, counters: &StreamCounters) -> bool {
     match tx.try_send(ev) {
         Ok(()) => true,
         Err(mpsc::error::TrySendError::Full(ev)) => {
@@ -420,15 +418,8 @@ async fn camera_task(
             (Some(src), Some(t)) => Some((t, src.wrench_at(t))),
             _ => None,
         };
-        match enc.try_send((frame, t)) {
-            Ok(()) => {}
-            Err(mpsc::error::TrySendError::Full(item)) => {
-                note_backpressure(&counters);
-                if enc.send(item).await.is_err() {
-                    return;
-                }
-            }
-            Err(mpsc::error::TrySendError::Closed(_)) => return,
+        if !forward(&enc, (frame, t), &counters).await {
+            return;
         }
     }
 }
