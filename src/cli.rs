@@ -52,6 +52,12 @@ pub enum Command {
     Bench(crate::bench::BenchArgs),
     /// Recorded datasets: verify completeness and synchronisation.
     Dataset(crate::dataset::DatasetArgs),
+    /// The TransForce trainer: `translate` (CycleGAN), then `force` (encoder + LSTM).
+    Train(crate::train::TrainArgs),
+    /// Evaluate force models on a target-sensor dataset (MAE, R², plots).
+    Eval(crate::train::EvalArgs),
+    /// The whole story on the simulated rig: collect, translate, train, evaluate.
+    Demo(crate::train::demo::DemoArgs),
 }
 
 /// Arguments of `rig run`.
@@ -126,6 +132,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Sim(args) => crate::simcli::run(&args),
         Command::Bench(args) => crate::bench::run(&args),
         Command::Dataset(args) => crate::dataset::run(&args),
+        Command::Train(args) => crate::train::train_command(&args),
+        Command::Eval(args) => crate::train::eval_command(&args),
+        Command::Demo(args) => crate::train::demo::demo_command(&args),
     }
 }
 

@@ -21,3 +21,4 @@ pub mod robot;
 pub mod run;
 pub mod simcli;
 pub mod sync;
+pub mod train;

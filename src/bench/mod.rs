@@ -4,6 +4,7 @@ pub mod render;
 pub mod run;
 pub mod sim;
 pub mod sync;
+pub mod train;
 
 use clap::{Args, Subcommand};
 
@@ -24,6 +25,9 @@ pub enum BenchCommand {
     Sync(sync::SyncBenchArgs),
     /// The whole `rig run` on the simulated rig: wall-clock time, effective speed, accuracy.
     Run(run::RunBenchArgs),
+    /// The force model: training throughput and inference latency per encoder depth, and
+    /// held-out MAE against training time for a few model sizes.
+    Train(train::TrainBenchArgs),
 }
 
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
@@ -32,5 +36,6 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Render(a) => render::run(a),
         BenchCommand::Sync(a) => sync::run(a),
         BenchCommand::Run(a) => run::run(a),
+        BenchCommand::Train(a) => train::run(a),
     }
 }

@@ -1,0 +1,230 @@
+//! `rig bench train`: what the force model's accuracy costs in time, on this machine's CPU.
+//!
+//! - For each encoder depth (ResNet-18, 34, 50): training throughput (sequences/s, images/s)
+//!   and inference latency per frame.
+//! - For a few model sizes: held-out MAE against cumulative training time, epoch by epoch.
+//!
+//! Data: a labelled dataset (default `runs/demo/data/source`, which `rig demo --quick` records);
+//! every fourth trajectory is held out for the MAE. Writes `train.csv` and `train.svg`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Args;
+use plotters::prelude::*;
+
+use crate::train::data::{self, ImageSpec, LabelledSet};
+use crate::train::eval::eval_windows;
+use crate::train::force::{self, ForceConfig, ForceModel};
+use crate::train::modality::Modality;
+use crate::train::nn::Depth;
+
+#[derive(Debug, Args)]
+pub struct TrainBenchArgs {
+    /// Labelled data (a `rig run` output or a directory of them).
+    #[arg(long, default_value = "runs/demo/data/source")]
+    pub data: PathBuf,
+    /// Network input size, WIDTHxHEIGHT.
+    #[arg(long, default_value = "32x24")]
+    pub size: String,
+    /// Epochs per MAE curve.
+    #[arg(long, default_value_t = 8)]
+    pub epochs: usize,
+    /// Smaller measurements (a quick look, noisier numbers).
+    #[arg(long)]
+    pub quick: bool,
+    #[arg(long, value_name = "DIR", default_value = "bench-out")]
+    pub out: PathBuf,
+}
+
+#[derive(Debug, Clone)]
+pub struct SpeedRow {
+    pub depth: Depth,
+    pub width: usize,
+    pub sequences_per_s: f64,
+    pub images_per_s: f64,
+    pub infer_ms_per_frame: f64,
+}
+
+#[derive(Debug, Clone)]
+pub struct CurvePoint {
+    pub model: String,
+    pub epoch: usize,
+    pub seconds: f64,
+    pub mae: [f64; 3],
+}
+
+fn split_holdout(set: &LabelledSet) -> anyhow::Result<(LabelledSet, LabelledSet)> {
+    let mut tr = (Vec::new(), Vec::new());
+    let mut ho = (Vec::new(), Vec::new());
+    for (i, t) in set.trajectories.iter().enumerate() {
+        let dst = if i % 4 == 3 { &mut ho } else { &mut tr };
+        dst.0.push(t.clone());
+        dst.1.push(set.forces(i).to_vec());
+    }
+    Ok((
+        LabelledSet::from_parts(set.spec, tr.0, tr.1)?,
+        LabelledSet::from_parts(set.spec, ho.0, ho.1)?,
+    ))
+}
+
+/// Held-out MAE per axis, N.
+pub fn holdout_mae(model: &ForceModel, set: &LabelledSet) -> [f64; 3] {
+    let lengths: Vec<usize> = set.trajectories.iter().map(|t| t.frames).collect();
+    let windows = eval_windows(&lengths, model.info.config.seq_len);
+    let seqs: Vec<_> = windows.iter().map(|(s, _)| s.clone()).collect();
+    let pred = model.predict(&set.trajectories, &seqs, 16);
+    let mut sum = [0f64; 3];
+    let mut n = 0usize;
+    for ((s, skip), p) in windows.iter().zip(pred) {
+        for (k, &i) in s.frames.iter().enumerate().skip(*skip) {
+            let t = set.forces(s.traj)[i];
+            for a in 0..3 {
+                sum[a] += (p[k][a] - t[a]).abs() as f64;
+            }
+            n += 1;
+        }
+    }
+    sum.map(|s| s / n.max(1) as f64)
+}
+
+pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
+    let (w, h) = args
+        .size
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .context("--size must be WIDTHxHEIGHT")?;
+    let spec = ImageSpec { width: w, height: h, modality: Modality::RgbMarker };
+    let all = data::load_labelled(&args.data, &spec, false).with_context(|| {
+        format!("no labelled data in {} (record some with `rig demo --quick` first)", args.data.display())
+    })?;
+    let (train, holdout) = split_holdout(&all)?;
+    let tmp = tempfile_dir(&args.out)?;
+    let base = ForceConfig { epochs: 1, ..ForceConfig::default() };
+
+    // Throughput and latency per depth.
+    let mut speed = Vec::new();
+    for depth in Depth::ALL {
+        let width = if args.quick { 4 } else { 8 };
+        let cfg = ForceConfig { depth, width, ..base.clone() };
+        let dir = tmp.join(format!("speed-{depth}"));
+        let r = force::train(&train, &cfg, "bench", &dir, false, false)?;
+        let model = ForceModel::load(&dir)?;
+        let lengths: Vec<usize> = holdout.trajectories.iter().map(|t| t.frames).collect();
+        let seqs: Vec<_> = eval_windows(&lengths, cfg.seq_len).into_iter().map(|(s, _)| s).collect();
+        let frames = seqs.len() * cfg.seq_len;
+        let t0 = Instant::now();
+        let _ = model.predict(&holdout.trajectories, &seqs, 16);
+        let infer = t0.elapsed().as_secs_f64() * 1e3 / frames.max(1) as f64;
+        speed.push(SpeedRow {
+            depth,
+            width,
+            sequences_per_s: r.sequences_per_s,
+            images_per_s: r.images_per_s,
+            infer_ms_per_frame: infer,
+        });
+    }
+
+    // MAE against training time for a few sizes.
+    let sizes: Vec<(Depth, usize)> = if args.quick {
+        vec![(Depth::R18, 4), (Depth::R18, 8)]
+    } else {
+        vec![(Depth::R18, 4), (Depth::R18, 8), (Depth::R18, 16), (Depth::R34, 8)]
+    };
+    let mut curve = Vec::new();
+    for (depth, width) in sizes {
+        let name = format!("resnet{depth} w{width}");
+        let dir = tmp.join(format!("curve-{depth}-{width}"));
+        let mut secs = 0.0;
+        for epoch in 1..=args.epochs {
+            let cfg = ForceConfig { depth, width, epochs: epoch, ..base.clone() };
+            let t0 = Instant::now();
+            force::train(&train, &cfg, "bench", &dir, epoch > 1, false)?;
+            secs += t0.elapsed().as_secs_f64();
+            let mae = holdout_mae(&ForceModel::load(&dir)?, &holdout);
+            eprintln!("{name} epoch {epoch}: {secs:.1} s, MAE {mae:.3?} N");
+            curve.push(CurvePoint { model: name.clone(), epoch, seconds: secs, mae });
+        }
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
+
+    println!("| encoder | width | train seq/s | train img/s | inference ms/frame |");
+    println!("| --- | ---: | ---: | ---: | ---: |");
+    for r in &speed {
+        println!(
+            "| ResNet-{} | {} | {:.1} | {:.0} | {:.2} |",
+            r.depth, r.width, r.sequences_per_s, r.images_per_s, r.infer_ms_per_frame
+        );
+    }
+    println!("\n| model | epoch | training s | MAE Fx | MAE Fy | MAE Fz |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: |");
+    for p in &curve {
+        println!(
+            "| {} | {} | {:.1} | {:.3} | {:.3} | {:.3} |",
+            p.model, p.epoch, p.seconds, p.mae[0], p.mae[1], p.mae[2]
+        );
+    }
+    std::fs::create_dir_all(&args.out)?;
+    let mut csv = String::from("kind,model,epoch,seconds,mae_fx,mae_fy,mae_fz,seq_per_s,img_per_s,infer_ms\n");
+    for r in &speed {
+        csv.push_str(&format!(
+            "speed,resnet{} w{},,,,,,{},{},{}\n",
+            r.depth, r.width, r.sequences_per_s, r.images_per_s, r.infer_ms_per_frame
+        ));
+    }
+    for p in &curve {
+        csv.push_str(&format!(
+            "curve,{},{},{},{},{},{},,,\n",
+            p.model, p.epoch, p.seconds, p.mae[0], p.mae[1], p.mae[2]
+        ));
+    }
+    std::fs::write(args.out.join("train.csv"), csv)?;
+    plot(&curve, &args.out.join("train.svg"))?;
+    println!("wrote {} and {}", args.out.join("train.csv").display(), args.out.join("train.svg").display());
+    Ok(())
+}
+
+fn tempfile_dir(out: &Path) -> anyhow::Result<PathBuf> {
+    let dir = out.join(format!(".bench-train-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
+
+/// Mean MAE over the three axes against training time, one line per model size.
+fn plot(curve: &[CurvePoint], path: &Path) -> anyhow::Result<()> {
+    let mean = |p: &CurvePoint| (p.mae[0] + p.mae[1] + p.mae[2]) / 3.0;
+    let tmax = curve.iter().map(|p| p.seconds).fold(1.0, f64::max);
+    let emax = curve.iter().map(mean).fold(1e-3, f64::max);
+    let root = SVGBackend::new(path, (800, 560)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("rig bench train: held-out force MAE against training time (CPU)", ("sans-serif", 20))
+        .margin(16)
+        .x_label_area_size(48)
+        .y_label_area_size(64)
+        .build_cartesian_2d(0.0..tmax * 1.05, 0.0..emax * 1.1)?;
+    chart
+        .configure_mesh()
+        .x_desc("training time (s)")
+        .y_desc("mean MAE over Fx, Fy, Fz (N)")
+        .draw()?;
+    let mut names: Vec<&str> = curve.iter().map(|p| p.model.as_str()).collect();
+    names.dedup();
+    for (i, name) in names.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        let pts: Vec<(f64, f64)> = curve.iter().filter(|p| p.model == *name).map(|p| (p.seconds, mean(p))).collect();
+        chart
+            .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))?
+            .label(*name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+        chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, colour.filled())))?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}

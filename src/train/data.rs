@@ -1,0 +1,796 @@
+//! Datasets for the trainer: recorded runs (`rig run` output: a manifest and an MCAP file per
+//! trajectory) and prepared datasets (the translator's output), decoded once into a cache.
+//!
+//! Who may see forces is enforced by the types:
+//! - [`LabelledSet`] (images + forces) is built only from source-sensor or translated datasets;
+//!   [`load_labelled`] refuses a target-sensor dataset.
+//! - [`UnlabelledSet`] (images only) is what translation gets from the target sensor; its loader
+//!   never reads a force.
+//! - [`EvalSet`] holds the target sensor's forces; only [`crate::train::eval`] reads them, and no
+//!   training function accepts one.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::{Deserialize, Serialize};
+
+use super::modality::{MarkerParams, Modality};
+use crate::record::channels::{self, ImageMsg, PairedMsg};
+use crate::record::manifest::{Manifest, Status};
+
+/// Name of a prepared dataset's index.
+pub const PREPARED_INDEX: &str = "prepared.json";
+const PREPARED_FRAMES: &str = "frames.bin";
+const CACHE_DIR: &str = ".trainer-cache";
+const CACHE_MAGIC: &[u8; 8] = b"RIGCACH1";
+
+/// The paper's unseen indenter group; `paralines` is left out of training (contact covers the
+/// whole field of view, a failure case of translation).
+pub const PAPER_UNSEEN: [&str; 6] = ["sphere_s", "triangle", "pacman", "wave", "torus", "cone"];
+pub const PAPER_EXCLUDED: [&str; 1] = ["paralines"];
+
+/// The seen/unseen indenter split: training uses the seen group only; evaluation reports both.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Split {
+    pub unseen: Vec<String>,
+    pub excluded: Vec<String>,
+}
+
+impl Default for Split {
+    fn default() -> Self {
+        Self {
+            unseen: PAPER_UNSEEN.iter().map(|s| s.to_string()).collect(),
+            excluded: PAPER_EXCLUDED.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+}
+
+impl Split {
+    pub fn group(&self, indenter: &str) -> &'static str {
+        if self.excluded.iter().any(|e| e == indenter) {
+            "excluded"
+        } else if self.unseen.iter().any(|e| e == indenter) {
+            "unseen"
+        } else {
+            "seen"
+        }
+    }
+    pub fn trains_on(&self, indenter: &str) -> bool {
+        self.group(indenter) == "seen"
+    }
+}
+
+/// Images as the networks see them: RGB, `width × height`, one modality.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ImageSpec {
+    pub width: u32,
+    pub height: u32,
+    pub modality: Modality,
+}
+
+impl ImageSpec {
+    pub fn frame_bytes(&self) -> usize {
+        self.width as usize * self.height as usize * 3
+    }
+}
+
+/// One trajectory's frames (RGB u8, frame after frame).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trajectory {
+    pub id: String,
+    pub indenter: String,
+    pub pixels: Vec<u8>,
+    pub frames: usize,
+}
+
+impl Trajectory {
+    pub fn frame(&self, i: usize, spec: &ImageSpec) -> &[u8] {
+        let n = spec.frame_bytes();
+        &self.pixels[i * n..(i + 1) * n]
+    }
+}
+
+/// Source-sensor (or translated) images with their force labels, N.
+#[derive(Debug, Clone)]
+pub struct LabelledSet {
+    pub spec: ImageSpec,
+    pub trajectories: Vec<Trajectory>,
+    forces: Vec<Vec<[f32; 3]>>,
+}
+
+/// Images only.
+#[derive(Debug, Clone)]
+pub struct UnlabelledSet {
+    pub spec: ImageSpec,
+    pub trajectories: Vec<Trajectory>,
+}
+
+/// Target-sensor images with their forces: for evaluation only.
+#[derive(Debug, Clone)]
+pub struct EvalSet {
+    pub spec: ImageSpec,
+    pub trajectories: Vec<Trajectory>,
+    forces: Vec<Vec<[f32; 3]>>,
+}
+
+impl LabelledSet {
+    /// A labelled set from frames and forces made in memory (tests, synthetic data).
+    pub fn from_parts(
+        spec: ImageSpec,
+        trajectories: Vec<Trajectory>,
+        forces: Vec<Vec<[f32; 3]>>,
+    ) -> anyhow::Result<Self> {
+        check_parts(&spec, &trajectories, &forces)?;
+        Ok(Self {
+            spec,
+            trajectories,
+            forces,
+        })
+    }
+    pub fn forces(&self, traj: usize) -> &[[f32; 3]] {
+        &self.forces[traj]
+    }
+    pub fn images(&self) -> UnlabelledSet {
+        UnlabelledSet {
+            spec: self.spec,
+            trajectories: self.trajectories.clone(),
+        }
+    }
+    /// Only the trajectories whose indenter is in the split's seen group.
+    pub fn seen_only(self, split: &Split) -> Self {
+        let (trajectories, forces) = self
+            .trajectories
+            .into_iter()
+            .zip(self.forces)
+            .filter(|(t, _)| split.trains_on(&t.indenter))
+            .unzip();
+        Self {
+            spec: self.spec,
+            trajectories,
+            forces,
+        }
+    }
+    /// Keep the images, replace them by others of the same count (the translator's output).
+    pub fn with_images(&self, spec: ImageSpec, trajectories: Vec<Trajectory>) -> anyhow::Result<Self> {
+        Self::from_parts(spec, trajectories, self.forces.clone())
+    }
+    /// Per-axis (min, max) of every force.
+    pub fn force_bounds(&self) -> [(f32, f32); 3] {
+        bounds(&self.forces)
+    }
+}
+
+impl EvalSet {
+    pub fn from_parts(
+        spec: ImageSpec,
+        trajectories: Vec<Trajectory>,
+        forces: Vec<Vec<[f32; 3]>>,
+    ) -> anyhow::Result<Self> {
+        check_parts(&spec, &trajectories, &forces)?;
+        Ok(Self {
+            spec,
+            trajectories,
+            forces,
+        })
+    }
+    pub fn forces(&self, traj: usize) -> &[[f32; 3]] {
+        &self.forces[traj]
+    }
+    pub fn images(&self) -> UnlabelledSet {
+        UnlabelledSet {
+            spec: self.spec,
+            trajectories: self.trajectories.clone(),
+        }
+    }
+}
+
+fn bounds(forces: &[Vec<[f32; 3]>]) -> [(f32, f32); 3] {
+    let mut b = [(f32::INFINITY, f32::NEG_INFINITY); 3];
+    for f in forces.iter().flatten() {
+        for a in 0..3 {
+            b[a].0 = b[a].0.min(f[a]);
+            b[a].1 = b[a].1.max(f[a]);
+        }
+    }
+    b
+}
+
+fn check_parts(
+    spec: &ImageSpec,
+    trajectories: &[Trajectory],
+    forces: &[Vec<[f32; 3]>],
+) -> anyhow::Result<()> {
+    if trajectories.len() != forces.len() {
+        bail!("{} trajectories but {} force lists", trajectories.len(), forces.len());
+    }
+    for (t, f) in trajectories.iter().zip(forces) {
+        if t.pixels.len() != t.frames * spec.frame_bytes() {
+            bail!("trajectory {}: pixel buffer does not match {} frames", t.id, t.frames);
+        }
+        if f.len() != t.frames {
+            bail!("trajectory {}: {} frames but {} forces", t.id, t.frames, f.len());
+        }
+        if f.iter().flatten().any(|v| !v.is_finite()) {
+            bail!("trajectory {}: a force label is not finite", t.id);
+        }
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Loading
+
+/// One decoded trajectory with its forces where the file has them.
+struct Loaded {
+    traj: Trajectory,
+    forces: Option<Vec<[f32; 3]>>,
+}
+
+/// The runs in `dir`: `dir` itself when it holds a manifest, else its subdirectories that do.
+pub fn find_runs(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    if dir.join("manifest.json").is_file() {
+        return Ok(vec![dir.to_path_buf()]);
+    }
+    let mut runs = Vec::new();
+    let entries = fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
+    for e in entries {
+        let p = e?.path();
+        if p.join("manifest.json").is_file() {
+            runs.push(p);
+        }
+    }
+    runs.sort();
+    if runs.is_empty() {
+        bail!(
+            "{} holds no dataset: expected a manifest.json (a `rig run` output), subdirectories \
+             with one, or a prepared dataset ({PREPARED_INDEX})",
+            dir.display()
+        );
+    }
+    Ok(runs)
+}
+
+/// The role (`source` / `target` / `translated`) of the dataset(s) in `dir`.
+pub fn role_of(dir: &Path) -> anyhow::Result<String> {
+    if dir.join(PREPARED_INDEX).is_file() {
+        return Ok(read_prepared_index(dir)?.role);
+    }
+    let mut roles: Vec<String> = find_runs(dir)?
+        .iter()
+        .map(|r| Manifest::load(r).map(|m| m.sensor.role).map_err(anyhow::Error::msg))
+        .collect::<anyhow::Result<_>>()?;
+    roles.sort();
+    roles.dedup();
+    match roles.as_slice() {
+        [one] => Ok(one.clone()),
+        _ => bail!("{} mixes sensor roles {roles:?}", dir.display()),
+    }
+}
+
+/// Source-sensor or translated images with forces. A target-sensor dataset is refused: its
+/// forces exist only to evaluate.
+pub fn load_labelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result<LabelledSet> {
+    let role = role_of(dir)?;
+    if role == "target" {
+        bail!(
+            "{} is a target-sensor dataset: its forces are for evaluation only (`rig eval`), \
+             never for training",
+            dir.display()
+        );
+    }
+    let loaded = load_any(dir, spec, true, progress)?;
+    let (trajectories, forces) = labelled_parts(loaded, dir)?;
+    LabelledSet::from_parts(*spec, trajectories, forces)
+}
+
+/// Images only, from any dataset (forces are not even read).
+pub fn load_unlabelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result<UnlabelledSet> {
+    let loaded = load_any(dir, spec, false, progress)?;
+    Ok(UnlabelledSet {
+        spec: *spec,
+        trajectories: loaded.into_iter().map(|l| l.traj).collect(),
+    })
+}
+
+/// Images with forces for evaluation, from any dataset that has forces.
+pub fn load_eval(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result<EvalSet> {
+    let loaded = load_any(dir, spec, true, progress)?;
+    let (trajectories, forces) = labelled_parts(loaded, dir)?;
+    EvalSet::from_parts(*spec, trajectories, forces)
+}
+
+fn labelled_parts(
+    loaded: Vec<Loaded>,
+    dir: &Path,
+) -> anyhow::Result<(Vec<Trajectory>, Vec<Vec<[f32; 3]>>)> {
+    let mut trajs = Vec::new();
+    let mut forces = Vec::new();
+    for l in loaded {
+        let f = l.forces.with_context(|| {
+            format!("{}: trajectory {} has no force labels", dir.display(), l.traj.id)
+        })?;
+        trajs.push(l.traj);
+        forces.push(f);
+    }
+    Ok((trajs, forces))
+}
+
+fn load_any(dir: &Path, spec: &ImageSpec, want_forces: bool, progress: bool) -> anyhow::Result<Vec<Loaded>> {
+    if dir.join(PREPARED_INDEX).is_file() {
+        return load_prepared(dir, spec, want_forces);
+    }
+    let mut jobs = Vec::new();
+    for run in find_runs(dir)? {
+        let m = Manifest::load(&run).map_err(anyhow::Error::msg)?;
+        let params = marker_params(&m.config);
+        for t in &m.trajectories {
+            if t.status != Status::Complete {
+                continue;
+            }
+            if let Some(file) = &t.file {
+                jobs.push((run.join(file), t.id.clone(), m.indenter.clone(), params));
+            }
+        }
+    }
+    if jobs.is_empty() {
+        bail!("{} has no complete trajectory", dir.display());
+    }
+    let bar = super::progress_bar(progress, jobs.len() as u64, "decoding");
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(jobs.len());
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut results: Vec<Option<anyhow::Result<Loaded>>> = (0..jobs.len()).map(|_| None).collect();
+    let slots = std::sync::Mutex::new(&mut results);
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some((path, id, indenter, params)) = jobs.get(i) else { break };
+                let r = load_trajectory(path, id, indenter, spec, params, want_forces)
+                    .with_context(|| format!("{}", path.display()));
+                bar.inc(1);
+                slots.lock().expect("loader poisoned")[i] = Some(r);
+            });
+        }
+    });
+    bar.finish_and_clear();
+    results
+        .into_iter()
+        .map(|r| r.expect("every job ran"))
+        .collect()
+}
+
+/// Marker size in pixels of the recorded images, from the rig config in the manifest.
+fn marker_params(config: &serde_json::Value) -> MarkerParams {
+    let optics = &config["optics"];
+    let dot = optics["markers"]["dot_diameter_mm"].as_f64();
+    let mm_px = optics["mm_per_px"].as_f64();
+    match (dot, mm_px) {
+        (Some(d), Some(s)) if d > 0.0 && s > 0.0 => MarkerParams::for_dot_radius((d / 2.0 / s) as f32),
+        _ => MarkerParams::default(),
+    }
+}
+
+/// Decode one trajectory file (through the cache).
+fn load_trajectory(
+    path: &Path,
+    id: &str,
+    indenter: &str,
+    spec: &ImageSpec,
+    params: &MarkerParams,
+    want_forces: bool,
+) -> anyhow::Result<Loaded> {
+    let meta = fs::metadata(path)?;
+    let stamp = (
+        meta.len(),
+        meta.modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map_or(0, |d| d.as_nanos() as u64),
+    );
+    let cache = path
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join(CACHE_DIR)
+        .join(format!(
+            "{id}-{}x{}-{}.bin",
+            spec.width,
+            spec.height,
+            spec.modality.name().replace('+', "_")
+        ));
+    if let Some((pixels, frames, forces)) = read_cache(&cache, stamp, spec) {
+        return Ok(Loaded {
+            traj: Trajectory {
+                id: id.into(),
+                indenter: indenter.into(),
+                pixels,
+                frames,
+            },
+            forces: want_forces.then_some(forces).flatten(),
+        });
+    }
+    let bytes = fs::read(path)?;
+    let stream = mcap::read::MessageStream::new(&bytes).context("unreadable MCAP")?;
+    let mut images: Vec<(i64, Vec<u8>)> = Vec::new();
+    let mut paired: BTreeMap<i64, [f32; 3]> = BTreeMap::new();
+    for msg in stream {
+        let msg = msg.context("corrupt MCAP record")?;
+        match msg.channel.topic.as_str() {
+            channels::TOPIC_IMAGE => {
+                let m: ImageMsg = serde_json::from_slice(&msg.data)?;
+                let png = channels::base64_decode(&m.data).context("frame is not base64")?;
+                images.push((m.seq, png));
+            }
+            channels::TOPIC_PAIRED => {
+                let m: PairedMsg = serde_json::from_slice(&msg.data)?;
+                if let Some(f) = m.force_n {
+                    paired.insert(m.frame_seq, [f[0] as f32, f[1] as f32, f[2] as f32]);
+                }
+            }
+            _ => {}
+        }
+    }
+    // Frames without a paired force (refused pairings) are left out of every set, so that a
+    // labelled and an unlabelled load of one file agree.
+    images.retain(|(seq, _)| paired.contains_key(seq));
+    images.sort_by_key(|(seq, _)| *seq);
+    let mut pixels = Vec::with_capacity(images.len() * spec.frame_bytes());
+    let mut forces = Vec::with_capacity(images.len());
+    for (seq, png) in &images {
+        let img = image::load_from_memory(png)
+            .with_context(|| format!("frame {seq} is not a PNG"))?
+            .to_rgb8();
+        pixels.extend_from_slice(&prepare_image(&img, spec, params));
+        forces.push(paired[seq]);
+    }
+    let frames = images.len();
+    write_cache(&cache, stamp, spec, &pixels, frames, &forces);
+    Ok(Loaded {
+        traj: Trajectory {
+            id: id.into(),
+            indenter: indenter.into(),
+            pixels,
+            frames,
+        },
+        forces: want_forces.then_some(forces),
+    })
+}
+
+/// Modality at the recorded resolution (where the markers are several pixels wide), then the
+/// network's size.
+pub fn prepare_image(img: &image::RgbImage, spec: &ImageSpec, params: &MarkerParams) -> Vec<u8> {
+    let m = spec.modality.apply(img, params);
+    let out = if m.width() == spec.width && m.height() == spec.height {
+        m
+    } else {
+        image::imageops::resize(&m, spec.width, spec.height, image::imageops::FilterType::Triangle)
+    };
+    out.into_raw()
+}
+
+fn read_cache(
+    path: &Path,
+    stamp: (u64, u64),
+    spec: &ImageSpec,
+) -> Option<(Vec<u8>, usize, Option<Vec<[f32; 3]>>)> {
+    let mut f = fs::File::open(path).ok()?;
+    let mut buf = Vec::new();
+    f.read_to_end(&mut buf).ok()?;
+    let head = 8 + 8 * 3 + 4 * 2;
+    if buf.len() < head || &buf[..8] != CACHE_MAGIC {
+        return None;
+    }
+    let u64_at = |o: usize| u64::from_le_bytes(buf[o..o + 8].try_into().expect("8 bytes"));
+    let (len, mtime, frames) = (u64_at(8), u64_at(16), u64_at(24) as usize);
+    let w = u32::from_le_bytes(buf[32..36].try_into().ok()?);
+    let h = u32::from_le_bytes(buf[36..40].try_into().ok()?);
+    if (len, mtime) != stamp || (w, h) != (spec.width, spec.height) {
+        return None;
+    }
+    let px = frames.checked_mul(spec.frame_bytes())?;
+    if buf.len() != head + px + frames * 12 {
+        return None;
+    }
+    let pixels = buf[head..head + px].to_vec();
+    let forces = buf[head + px..]
+        .chunks_exact(12)
+        .map(|c| {
+            let v = |k: usize| f32::from_le_bytes(c[k * 4..k * 4 + 4].try_into().expect("4 bytes"));
+            [v(0), v(1), v(2)]
+        })
+        .collect();
+    Some((pixels, frames, Some(forces)))
+}
+
+/// Best effort: a cache that cannot be written only costs decoding time next run.
+fn write_cache(
+    path: &Path,
+    stamp: (u64, u64),
+    spec: &ImageSpec,
+    pixels: &[u8],
+    frames: usize,
+    forces: &[[f32; 3]],
+) {
+    let mut buf = Vec::with_capacity(40 + pixels.len() + forces.len() * 12);
+    buf.extend_from_slice(CACHE_MAGIC);
+    for v in [stamp.0, stamp.1, frames as u64] {
+        buf.extend_from_slice(&v.to_le_bytes());
+    }
+    buf.extend_from_slice(&spec.width.to_le_bytes());
+    buf.extend_from_slice(&spec.height.to_le_bytes());
+    buf.extend_from_slice(pixels);
+    for f in forces {
+        for v in f {
+            buf.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    if let Some(dir) = path.parent() {
+        let _ = fs::create_dir_all(dir);
+    }
+    let _ = crate::record::file::write_atomic(path, &buf);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Prepared datasets (the translator's output)
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct PreparedIndex {
+    format: String,
+    /// `translated`: source images in the target's style, with the source forces.
+    role: String,
+    width: u32,
+    height: u32,
+    modality: Modality,
+    trajectories: Vec<PreparedTrajectory>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct PreparedTrajectory {
+    id: String,
+    indenter: String,
+    frames: usize,
+    forces: Option<Vec<[f32; 3]>>,
+}
+
+fn read_prepared_index(dir: &Path) -> anyhow::Result<PreparedIndex> {
+    let path = dir.join(PREPARED_INDEX);
+    let text = fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_slice(&text).with_context(|| format!("{} is not a prepared index", path.display()))
+}
+
+/// Write a labelled set as a prepared dataset (`prepared.json` + `frames.bin`), atomically.
+pub fn write_prepared(dir: &Path, set: &LabelledSet, role: &str) -> anyhow::Result<()> {
+    fs::create_dir_all(dir)?;
+    let index = PreparedIndex {
+        format: "rig-prepared-1".into(),
+        role: role.into(),
+        width: set.spec.width,
+        height: set.spec.height,
+        modality: set.spec.modality,
+        trajectories: set
+            .trajectories
+            .iter()
+            .zip(&set.forces)
+            .map(|(t, f)| PreparedTrajectory {
+                id: t.id.clone(),
+                indenter: t.indenter.clone(),
+                frames: t.frames,
+                forces: Some(f.clone()),
+            })
+            .collect(),
+    };
+    let tmp = dir.join(format!("{PREPARED_FRAMES}.partial"));
+    {
+        let mut f = std::io::BufWriter::new(fs::File::create(&tmp)?);
+        for t in &set.trajectories {
+            f.write_all(&t.pixels)?;
+        }
+        f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+    }
+    fs::rename(&tmp, dir.join(PREPARED_FRAMES))?;
+    crate::record::file::write_atomic(&dir.join(PREPARED_INDEX), &serde_json::to_vec_pretty(&index)?)?;
+    Ok(())
+}
+
+fn load_prepared(dir: &Path, spec: &ImageSpec, want_forces: bool) -> anyhow::Result<Vec<Loaded>> {
+    let index = read_prepared_index(dir)?;
+    let stored = ImageSpec {
+        width: index.width,
+        height: index.height,
+        modality: index.modality,
+    };
+    let all = fs::read(dir.join(PREPARED_FRAMES)).context("cannot read frames.bin")?;
+    let need: usize = index.trajectories.iter().map(|t| t.frames * stored.frame_bytes()).sum();
+    if all.len() != need {
+        bail!("{}: frames.bin holds {} bytes, the index needs {need}", dir.display(), all.len());
+    }
+    if stored.modality != Modality::RgbMarker && stored.modality != spec.modality {
+        bail!(
+            "{} holds {} images; {} cannot be derived from them",
+            dir.display(),
+            stored.modality,
+            spec.modality
+        );
+    }
+    // Marker dots scale with the image: a recorded 320-px frame has dots of about 5 px radius.
+    let params = MarkerParams::for_dot_radius((5.0 * stored.width as f32 / 320.0).max(0.5));
+    let mut out = Vec::new();
+    let mut off = 0;
+    for t in index.trajectories {
+        let n = t.frames * stored.frame_bytes();
+        let raw = &all[off..off + n];
+        off += n;
+        let pixels = if stored == *spec {
+            raw.to_vec()
+        } else {
+            let mut px = Vec::with_capacity(t.frames * spec.frame_bytes());
+            for chunk in raw.chunks_exact(stored.frame_bytes()) {
+                let img = image::RgbImage::from_raw(stored.width, stored.height, chunk.to_vec())
+                    .context("bad frame size")?;
+                px.extend_from_slice(&prepare_image(&img, spec, &params));
+            }
+            px
+        };
+        out.push(Loaded {
+            traj: Trajectory {
+                id: t.id,
+                indenter: t.indenter,
+                pixels,
+                frames: t.frames,
+            },
+            forces: if want_forces { t.forces } else { None },
+        });
+    }
+    Ok(out)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Sequences and batches
+
+/// A small deterministic PRNG (SplitMix64), so that runs are reproducible from a seed.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `0..n` (n > 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    pub fn shuffle<T>(&mut self, v: &mut [T]) {
+        for i in (1..v.len()).rev() {
+            v.swap(i, self.below(i + 1));
+        }
+    }
+}
+
+/// A sequence: T frame indices of one trajectory, in time order.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Sequence {
+    pub traj: usize,
+    pub frames: Vec<usize>,
+}
+
+/// At each trajectory, draw `k` sequences of `t` distinct frames in time order (the paper:
+/// T = 8, K = 4). Trajectories with fewer than `t` frames give none.
+pub fn sample_sequences(lengths: &[usize], t: usize, k: usize, rng: &mut Rng) -> Vec<Sequence> {
+    let mut out = Vec::new();
+    for (traj, &n) in lengths.iter().enumerate() {
+        if t == 0 || n < t {
+            continue;
+        }
+        for _ in 0..k {
+            // Partial Fisher-Yates: the first t of a shuffled 0..n, then sorted.
+            let mut idx: Vec<usize> = (0..n).collect();
+            for i in 0..t {
+                let j = i + rng.below(n - i);
+                idx.swap(i, j);
+            }
+            let mut frames = idx[..t].to_vec();
+            frames.sort_unstable();
+            out.push(Sequence { traj, frames });
+        }
+    }
+    out
+}
+
+/// RGB u8 frames (HWC) to an NCHW tensor in [-1, 1].
+pub fn images_to_tensor(frames: &[&[u8]], spec: &ImageSpec, dev: &Device) -> Tensor<4> {
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    let mut v = vec![0f32; frames.len() * 3 * w * h];
+    for (n, f) in frames.iter().enumerate() {
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    v[((n * 3 + c) * h + y) * w + x] = f[(y * w + x) * 3 + c] as f32 / 127.5 - 1.0;
+                }
+            }
+        }
+    }
+    Tensor::from_data(TensorData::new(v, [frames.len(), 3, h, w]), dev)
+}
+
+/// An NCHW tensor in [-1, 1] back to RGB u8 frames (HWC), clamped.
+pub fn tensor_to_images(t: Tensor<4>) -> Vec<Vec<u8>> {
+    let [n, c, h, w] = t.dims();
+    let v: Vec<f32> = t.into_data().convert::<f32>().try_to_vec::<f32>().expect("f32 tensor");
+    (0..n)
+        .map(|i| {
+            let mut out = vec![0u8; h * w * 3];
+            for y in 0..h {
+                for x in 0..w {
+                    for ch in 0..c.min(3) {
+                        let val = v[((i * c + ch) * h + y) * w + x];
+                        out[(y * w + x) * 3 + ch] = ((val + 1.0) * 127.5).round().clamp(0.0, 255.0) as u8;
+                    }
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sequences_are_sorted_distinct_and_deterministic() {
+        let lens = [20, 5, 8, 3];
+        let a = sample_sequences(&lens, 8, 4, &mut Rng(7));
+        let b = sample_sequences(&lens, 8, 4, &mut Rng(7));
+        assert_eq!(a, b);
+        // 20 and 8 frames give 4 each; 5 and 3 are too short.
+        assert_eq!(a.len(), 8);
+        for s in &a {
+            assert_eq!(s.frames.len(), 8);
+            assert!(s.frames.windows(2).all(|w| w[0] < w[1]));
+            assert!(*s.frames.last().unwrap() < lens[s.traj]);
+        }
+        // Exactly 8 of 8 frames: the whole trajectory.
+        assert!(a.iter().filter(|s| s.traj == 2).all(|s| s.frames == (0..8).collect::<Vec<_>>()));
+        assert_ne!(a, sample_sequences(&lens, 8, 4, &mut Rng(8)));
+    }
+
+    #[test]
+    fn split_defaults_to_the_papers_groups() {
+        let s = Split::default();
+        assert_eq!(s.group("cone"), "unseen");
+        assert_eq!(s.group("sphere"), "seen");
+        assert_eq!(s.group("paralines"), "excluded");
+        assert!(s.trains_on("hexagon"));
+        assert!(!s.trains_on("torus"));
+    }
+
+    #[test]
+    fn image_tensor_round_trip_is_exact() {
+        let spec = ImageSpec { width: 4, height: 3, modality: Modality::RgbMarker };
+        let a: Vec<u8> = (0..36).map(|i| (i * 7) as u8).collect();
+        let b: Vec<u8> = (0..36).map(|i| 255 - i as u8).collect();
+        let t = images_to_tensor(&[&a, &b], &spec, &Device::flex());
+        assert_eq!(t.dims(), [2, 3, 3, 4]);
+        assert_eq!(tensor_to_images(t), vec![a, b]);
+    }
+
+    #[test]
+    fn labelled_parts_are_checked() {
+        let spec = ImageSpec { width: 2, height: 2, modality: Modality::RgbMarker };
+        let traj = Trajectory { id: "t".into(), indenter: "cone".into(), pixels: vec![0; 24], frames: 2 };
+        assert!(LabelledSet::from_parts(spec, vec![traj.clone()], vec![vec![[0.0; 3]; 2]]).is_ok());
+        assert!(LabelledSet::from_parts(spec, vec![traj.clone()], vec![vec![[0.0; 3]; 3]]).is_err());
+        let nan = LabelledSet::from_parts(spec, vec![traj], vec![vec![[f32::NAN, 0.0, 0.0]; 2]]);
+        assert!(nan.unwrap_err().to_string().contains("not finite"));
+    }
+}

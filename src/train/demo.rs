@@ -1,0 +1,269 @@
+//! `rig demo [--quick]`: the whole TransForce story on the simulated rig, at a small scale.
+//!
+//! 1. Collect a source dataset (images + forces) and a target dataset (a second simulated sensor
+//!    with other LEDs and markers) for a few seen and unseen indenters.
+//! 2. Translate the source images into the target's style (CycleGAN).
+//! 3. Train the force model on the translated sequences with the source forces (TransForce), its
+//!    no-LSTM control, and the source-only baseline (trained on the raw source images).
+//! 4. Evaluate all of them on the target sensor and print the paper-shaped table.
+//!
+//! Re-running with the same `--out` reuses the recorded data (`rig run --resume`) and retrains.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::Args;
+use rig_core::config::RigConfig;
+use rig_core::indenter::Indenter;
+
+use super::cyclegan::TranslateConfig;
+use super::data::{self, ImageSpec, Split};
+use super::eval;
+use super::force::{self, ForceConfig};
+use super::modality::Modality;
+use super::nn::{Depth, GanShape};
+use super::report::{Row, Table};
+
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// A few-minute version (what CI runs): fewer indenters and trajectories, smaller images and
+    /// networks, R+M only.
+    #[arg(long)]
+    pub quick: bool,
+    /// Where the data, models and results go.
+    #[arg(long, default_value = "runs/demo")]
+    pub out: PathBuf,
+}
+
+/// The demo's scale.
+#[derive(Debug, Clone)]
+pub struct DemoPlan {
+    pub seen: Vec<&'static str>,
+    pub unseen: Vec<&'static str>,
+    pub directions_deg: Vec<f64>,
+    pub camera: (u32, u32),
+    pub spec: (u32, u32),
+    pub modalities: Vec<Modality>,
+    pub translate: TranslateConfig,
+    pub force: ForceConfig,
+}
+
+impl DemoPlan {
+    pub fn new(quick: bool) -> Self {
+        if quick {
+            Self {
+                seen: vec!["sphere", "cylinder", "hexagon"],
+                unseen: vec!["cone"],
+                directions_deg: vec![0.0, 90.0, 180.0, 270.0],
+                camera: (160, 120),
+                spec: (32, 24),
+                modalities: vec![Modality::RgbMarker],
+                translate: TranslateConfig {
+                    shape: GanShape {
+                        ngf: 8,
+                        ndf: 8,
+                        res_blocks: 2,
+                        disc_layers: 2,
+                    },
+                    batch: 4,
+                    epochs: 2,
+                    steps_per_epoch: Some(150),
+                    ..TranslateConfig::default()
+                },
+                force: ForceConfig {
+                    depth: Depth::R18,
+                    width: 8,
+                    epochs: 12,
+                    batch: 8,
+                    ..ForceConfig::default()
+                },
+            }
+        } else {
+            Self {
+                seen: vec!["sphere", "cylinder", "hexagon", "moon", "prism", "dots"],
+                unseen: vec!["cone", "triangle"],
+                directions_deg: (0..12).map(|k| k as f64 * 30.0).collect(),
+                camera: (320, 240),
+                spec: (64, 48),
+                modalities: Modality::ALL.to_vec(),
+                translate: TranslateConfig {
+                    epochs: 5,
+                    steps_per_epoch: Some(1000),
+                    batch: 2,
+                    ..TranslateConfig::default()
+                },
+                force: ForceConfig {
+                    epochs: 20,
+                    ..ForceConfig::default()
+                },
+            }
+        }
+    }
+}
+
+/// The simulated rig of one sensor at the demo's scale: the centre contact point, all depths,
+/// the demo's shear directions, the demo's camera size.
+pub fn demo_config(base: RigConfig, plan: &DemoPlan) -> RigConfig {
+    let mut c = base;
+    c.plan.contact_points_mm = vec![[0.0, 0.0]];
+    c.plan.directions_deg = plan.directions_deg.clone();
+    let (w, h) = plan.camera;
+    if let Some(cam) = c.camera.as_mut() {
+        let scale = cam.width_px as f64 / w as f64;
+        cam.width_px = w;
+        cam.height_px = h;
+        if let Some(o) = c.optics.as_mut() {
+            o.width_px = w;
+            o.height_px = h;
+            o.mm_per_px *= scale;
+        }
+    }
+    c
+}
+
+fn collect(config: &RigConfig, indenter: &str, out: &Path, progress: bool) -> anyhow::Result<()> {
+    let ind = Indenter::load(indenter)?;
+    let resume = out.join("manifest.json").is_file();
+    if resume && crate::dataset::check(out).ok() {
+        return Ok(());
+    }
+    let opts = crate::run::RunOptions {
+        resume,
+        progress,
+        ..crate::run::RunOptions::new(out)
+    };
+    let rt = tokio::runtime::Runtime::new()?;
+    let summary = rt
+        .block_on(crate::run::run(config, &ind, &opts))
+        .with_context(|| format!("collecting {indenter} on {}", config.sensor.id))?;
+    let report = crate::dataset::check(out);
+    if !report.ok() {
+        anyhow::bail!(
+            "the {indenter} dataset of {} is not complete:\n{}{}",
+            config.sensor.id,
+            summary.report(),
+            crate::dataset::render(&report)
+        );
+    }
+    Ok(())
+}
+
+/// Run the demo; returns the table (also written to `<out>/results.*`).
+pub fn run(quick: bool, out: &Path) -> anyhow::Result<Table> {
+    let progress = std::io::stderr().is_terminal();
+    let plan = DemoPlan::new(quick);
+    let t0 = std::time::Instant::now();
+    let split = Split {
+        unseen: plan.unseen.iter().map(|s| s.to_string()).collect(),
+        ..Split::default()
+    };
+    let source_cfg = demo_config(RigConfig::sim_source(), &plan);
+    let target_cfg = demo_config(RigConfig::sim_target(), &plan);
+    let (src_dir, tgt_dir) = (out.join("data/source"), out.join("data/target"));
+    let indenters: Vec<&str> = plan.seen.iter().chain(&plan.unseen).copied().collect();
+    eprintln!(
+        "[1/4] collecting on the simulated rig: {} indenters × {} trajectories × 2 sensors",
+        indenters.len(),
+        4 * plan.directions_deg.len()
+    );
+    for ind in &indenters {
+        collect(&source_cfg, ind, &src_dir.join(ind), progress)?;
+        collect(&target_cfg, ind, &tgt_dir.join(ind), progress)?;
+    }
+    eprintln!("      done in {:.0} s", t0.elapsed().as_secs_f64());
+
+    let rgbm = ImageSpec {
+        width: plan.spec.0,
+        height: plan.spec.1,
+        modality: Modality::RgbMarker,
+    };
+    let source = data::load_labelled(&src_dir, &rgbm, progress)?.seen_only(&split);
+    let target_images = data::load_unlabelled(&tgt_dir, &rgbm, progress)?;
+    // The translator sees target images of the seen indenters only.
+    let mut target_seen = target_images.clone();
+    target_seen.trajectories.retain(|t| split.trains_on(&t.indenter));
+
+    eprintln!("[2/4] translating source → target style (CycleGAN)");
+    let t1 = std::time::Instant::now();
+    let translated = super::cyclegan::translate(&source, &target_seen, &plan.translate, &out.join("translate"), progress)?;
+    eprintln!(
+        "      {} iterations in {:.0} s, cycle loss {:.3}",
+        translated.info.iterations,
+        t1.elapsed().as_secs_f64(),
+        translated.info.last.cycle
+    );
+    let mut table = Table {
+        rows: Vec::new(),
+        fid: Vec::new(),
+    };
+    table.fid.extend(eval::fid_rows("I_s–I_t", &data::load_unlabelled(&src_dir, &rgbm, false)?, &target_images, &split));
+    table.fid.extend(eval::fid_rows("Î_t–I_t", &translated.set.images(), &target_images, &split));
+
+    eprintln!("[3/4] training force models");
+    let translated_dir = out.join("translate/translated");
+    let mut models: Vec<(String, PathBuf)> = Vec::new();
+    for &m in &plan.modalities {
+        let spec = ImageSpec { modality: m, ..rgbm };
+        let tr = data::load_labelled(&translated_dir, &spec, progress)?;
+        for (lstm, name) in [(true, "TransForce"), (false, "TransForce (no LSTM)")] {
+            let dir = out.join(format!("models/{}-{}", eval::slug(name), eval::slug(m.name())));
+            let cfg = ForceConfig { lstm, ..plan.force.clone() };
+            let t2 = std::time::Instant::now();
+            let r = force::train(&tr, &cfg, name, &dir, false, progress)?;
+            eprintln!("      {name} {}: loss {:.4}, {:.0} s", m.paper_name(), r.last_loss, t2.elapsed().as_secs_f64());
+            models.push((name.into(), dir));
+        }
+        let src = data::load_labelled(&src_dir, &spec, progress)?.seen_only(&split);
+        let dir = out.join(format!("models/source-only-{}", eval::slug(m.name())));
+        let t2 = std::time::Instant::now();
+        let r = force::train(&src, &plan.force, "source-only", &dir, false, progress)?;
+        eprintln!("      source-only {}: loss {:.4}, {:.0} s", m.paper_name(), r.last_loss, t2.elapsed().as_secs_f64());
+        models.push(("source-only".into(), dir));
+    }
+
+    eprintln!("[4/4] evaluating on the target sensor");
+    for (_, dir) in &models {
+        table.rows.extend(eval::evaluate(dir, &tgt_dir, &out.join("results"), &split, progress)?);
+    }
+    table.write(&out.join("results"))?;
+    eprintln!("      total {:.0} s", t0.elapsed().as_secs_f64());
+    Ok(table)
+}
+
+/// Does TransForce (LSTM) beat source-only on MAE on every axis, per modality and group?
+pub fn beats_source_only(rows: &[Row]) -> Vec<(String, String, [bool; 3])> {
+    let mut out = Vec::new();
+    for r in rows.iter().filter(|r| r.method == "TransForce") {
+        if let Some(b) = rows
+            .iter()
+            .find(|b| b.method == "source-only" && b.modality == r.modality && b.group == r.group)
+        {
+            out.push((
+                r.modality.clone(),
+                r.group.clone(),
+                std::array::from_fn(|a| r.mae[a] < b.mae[a]),
+            ));
+        }
+    }
+    out
+}
+
+pub fn demo_command(args: &DemoArgs) -> anyhow::Result<()> {
+    let table = run(args.quick, &args.out)?;
+    println!("{}", table.markdown());
+    for (modality, group, wins) in beats_source_only(&table.rows) {
+        let axes: Vec<&str> = ["Fx", "Fy", "Fz"]
+            .iter()
+            .zip(wins)
+            .map(|(a, w)| if w { *a } else { "-" })
+            .collect();
+        println!(
+            "TransForce beats source-only ({modality}, {group}): {} [{}]",
+            if wins.iter().all(|w| *w) { "yes, on every axis" } else { "NOT on every axis" },
+            axes.join(" ")
+        );
+    }
+    println!("results in {}", args.out.join("results").display());
+    Ok(())
+}

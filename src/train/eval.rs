@@ -1,0 +1,240 @@
+//! `rig eval`: a force model on the target sensor's data, in the paper's terms: MAE and R² per
+//! axis and the total-force MAE, for the seen and unseen indenter groups; FID/KID between image
+//! sets.
+
+use std::path::Path;
+
+use serde::Serialize;
+
+use super::data::{EvalSet, ImageSpec, Rng, Sequence, Split, Trajectory, UnlabelledSet};
+use super::force::ForceModel;
+use super::metrics::{self, AxisScores};
+use super::report::{FidRow, Row};
+
+/// Predictions and truths of one model on one evaluation set, per frame.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Predictions {
+    pub indenter: Vec<String>,
+    pub pred: Vec<[f64; 3]>,
+    pub truth: Vec<[f64; 3]>,
+}
+
+/// Evaluation sequences: every frame of every trajectory exactly once, in windows of T frames
+/// in time order (consecutive frames; the last window of a trajectory is shifted back to end on
+/// its last frame, and its frames already scored are skipped).
+pub fn eval_windows(lengths: &[usize], t: usize) -> Vec<(Sequence, usize)> {
+    let mut out = Vec::new();
+    for (traj, &n) in lengths.iter().enumerate() {
+        if n < t || t == 0 {
+            continue;
+        }
+        let mut start = 0;
+        while start < n {
+            let s = start.min(n - t);
+            // Positions before `skip` were scored by the previous window.
+            let skip = start - s;
+            out.push((
+                Sequence {
+                    traj,
+                    frames: (s..s + t).collect(),
+                },
+                skip,
+            ));
+            start += t;
+        }
+    }
+    out
+}
+
+/// Run the model over the set.
+pub fn predict(model: &ForceModel, set: &EvalSet) -> Predictions {
+    let lengths: Vec<usize> = set.trajectories.iter().map(|t| t.frames).collect();
+    let windows = eval_windows(&lengths, model.info.config.seq_len);
+    let seqs: Vec<Sequence> = windows.iter().map(|(s, _)| s.clone()).collect();
+    let out = model.predict(&set.trajectories, &seqs, 16);
+    let mut p = Predictions::default();
+    for ((seq, skip), pred) in windows.iter().zip(out) {
+        let truth = set.forces(seq.traj);
+        for (k, &i) in seq.frames.iter().enumerate().skip(*skip) {
+            p.indenter.push(set.trajectories[seq.traj].indenter.clone());
+            p.pred.push(pred[k].map(|v| v as f64));
+            p.truth.push(truth[i].map(|v| v as f64));
+        }
+    }
+    p
+}
+
+/// Table rows for the seen and unseen groups (those present) and all together.
+pub fn rows(method: &str, modality: &str, p: &Predictions, split: &Split) -> Vec<Row> {
+    let mut rows = Vec::new();
+    for group in ["seen", "unseen", "all"] {
+        let (pred, truth): (Vec<[f64; 3]>, Vec<[f64; 3]>) = p
+            .indenter
+            .iter()
+            .zip(p.pred.iter().zip(&p.truth))
+            .filter(|(ind, _)| group == "all" || split.group(ind) == group)
+            .map(|(_, (a, b))| (*a, *b))
+            .unzip();
+        if pred.is_empty() {
+            continue;
+        }
+        let s: AxisScores = metrics::score(&pred, &truth);
+        rows.push(Row {
+            method: method.into(),
+            modality: modality.into(),
+            group: group.into(),
+            mae: s.mae,
+            r2: s.r2,
+            total_mae: s.total_mae,
+            n: s.n,
+        });
+    }
+    rows
+}
+
+/// Evaluate a model directory on a target dataset; writes the table and the plots into `out`.
+pub fn evaluate(model_dir: &Path, data: &Path, out: &Path, split: &Split, progress: bool) -> anyhow::Result<Vec<Row>> {
+    let model = ForceModel::load(model_dir)?;
+    let set = super::data::load_eval(data, &model.spec(), progress)?;
+    let p = predict(&model, &set);
+    if p.pred.is_empty() {
+        anyhow::bail!("{} has no trajectory of {} frames to evaluate", data.display(), model.info.config.seq_len);
+    }
+    let rows = rows(&model.info.method, model.spec().modality.paper_name(), &p, split);
+    std::fs::create_dir_all(out)?;
+    super::report::plot_pred_vs_true(
+        &out.join(format!("pred-vs-true-{}.svg", slug(&model.info.method))),
+        &format!("{} ({}) on {}", model.info.method, model.spec().modality.paper_name(), data.display()),
+        &p.pred,
+        &p.truth,
+    )?;
+    Ok(rows)
+}
+
+pub fn slug(s: &str) -> String {
+    s.chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '-' })
+        .collect::<String>()
+        .split('-')
+        .filter(|p| !p.is_empty())
+        .collect::<Vec<_>>()
+        .join("-")
+}
+
+// ---------------------------------------------------------------------------------------------
+// FID / KID
+
+/// Image features for FID/KID. No pretrained Inception network can be fetched here, so the
+/// features are fixed image statistics: the mean colour of each cell of a 4 × 4 grid (48 values)
+/// and the luminance standard deviation of each cell (16). The distances compare our image sets
+/// with each other (I_s–I_t against Î_t–I_t); they are not comparable with the paper's numbers.
+pub fn features(frame: &[u8], spec: &ImageSpec) -> Vec<f64> {
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    let g = 4;
+    let mut sum = vec![[0f64; 3]; g * g];
+    let mut lum = vec![(0f64, 0f64); g * g];
+    let mut cnt = vec![0f64; g * g];
+    for y in 0..h {
+        for x in 0..w {
+            let cell = (y * g / h.max(1)) * g + x * g / w.max(1);
+            let p = &frame[(y * w + x) * 3..(y * w + x) * 3 + 3];
+            let rgb = [p[0] as f64 / 255.0, p[1] as f64 / 255.0, p[2] as f64 / 255.0];
+            let l = 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
+            for c in 0..3 {
+                sum[cell][c] += rgb[c];
+            }
+            lum[cell].0 += l;
+            lum[cell].1 += l * l;
+            cnt[cell] += 1.0;
+        }
+    }
+    let mut f = Vec::with_capacity(g * g * 4);
+    for k in 0..g * g {
+        let n = cnt[k].max(1.0);
+        f.extend(sum[k].iter().map(|s| s / n));
+        let m = lum[k].0 / n;
+        f.push((lum[k].1 / n - m * m).max(0.0).sqrt());
+    }
+    f
+}
+
+fn set_features(trajs: &[Trajectory], spec: &ImageSpec, filter: &dyn Fn(&str) -> bool, max: usize, seed: u64) -> Vec<Vec<f64>> {
+    let all: Vec<(usize, usize)> = trajs
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| filter(&t.indenter))
+        .flat_map(|(i, t)| (0..t.frames).map(move |k| (i, k)))
+        .collect();
+    let mut idx: Vec<usize> = (0..all.len()).collect();
+    Rng(seed).shuffle(&mut idx);
+    idx.truncate(max);
+    idx.iter()
+        .map(|&j| {
+            let (i, k) = all[j];
+            features(trajs[i].frame(k, spec), spec)
+        })
+        .collect()
+}
+
+/// FID and KID between two image sets, per indenter group present in both.
+pub fn fid_rows(pair: &str, a: &UnlabelledSet, b: &UnlabelledSet, split: &Split) -> Vec<FidRow> {
+    let mut rows = Vec::new();
+    for group in ["seen", "unseen"] {
+        let f = |ind: &str| split.group(ind) == group;
+        let fa = set_features(&a.trajectories, &a.spec, &f, 2000, 1);
+        let fb = set_features(&b.trajectories, &b.spec, &f, 2000, 2);
+        if fa.len() < 2 || fb.len() < 2 {
+            continue;
+        }
+        let fid = metrics::fid(&fa, &fb).unwrap_or(f64::NAN);
+        let size = fa.len().min(fb.len()).min(200);
+        let kid = metrics::kid(&fa, &fb, 10, size, 3).map(|k| k.0).unwrap_or(f64::NAN);
+        rows.push(FidRow {
+            group: group.into(),
+            pair: pair.into(),
+            fid,
+            kid,
+        });
+    }
+    rows
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn eval_windows_score_every_frame_once() {
+        let lens = [20, 8, 5, 9];
+        let w = eval_windows(&lens, 8);
+        for (traj, &n) in lens.iter().enumerate() {
+            let mut seen = vec![0; n];
+            for (s, skip) in w.iter().filter(|(s, _)| s.traj == traj) {
+                assert_eq!(s.frames.len(), 8);
+                assert!(s.frames.windows(2).all(|p| p[1] == p[0] + 1));
+                for &i in s.frames.iter().skip(*skip) {
+                    seen[i] += 1;
+                }
+            }
+            if n >= 8 {
+                assert!(seen.iter().all(|&c| c == 1), "traj {traj}: {seen:?}");
+            } else {
+                assert!(seen.iter().all(|&c| c == 0));
+            }
+        }
+    }
+
+    #[test]
+    fn features_of_a_flat_image_are_its_colour() {
+        let spec = ImageSpec { width: 8, height: 8, modality: super::super::modality::Modality::RgbMarker };
+        let px: Vec<u8> = [51u8, 102, 204].repeat(64);
+        let f = features(&px, &spec);
+        assert_eq!(f.len(), 64);
+        for k in 0..16 {
+            assert!((f[k * 4] - 0.2).abs() < 1e-12);
+            assert!((f[k * 4 + 1] - 0.4).abs() < 1e-12);
+            assert!((f[k * 4 + 2] - 0.8).abs() < 1e-12);
+            assert!(f[k * 4 + 3].abs() < 1e-6);
+        }
+    }
+}

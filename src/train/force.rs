@@ -1,0 +1,416 @@
+//! `rig train force`: the sequential force model (encoder + LSTM, or the `nolstm` control),
+//! trained with the γ-weighted L1 loss on labelled sequences; checkpoints in safetensors.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig};
+use burn::store::{BurnpackStore, ModuleSnapshot, SafetensorsStore};
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::{Deserialize, Serialize};
+
+use super::data::{ImageSpec, LabelledSet, Rng, Sequence, Trajectory, images_to_tensor, sample_sequences};
+use super::nn::{Depth, ForceNet, ForceShape, gamma_l1};
+
+pub const MODEL_INFO: &str = "model.json";
+const WEIGHTS: &str = "model.safetensors";
+/// The same weights in burn's own format, which also keeps each parameter's id: the optimiser
+/// state is keyed by those ids, so resuming needs them.
+const RESUME_WEIGHTS: &str = "resume.bpk";
+const OPTIM: &str = "optim.bin";
+const LOG: &str = "train-log.csv";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Optimizer {
+    Adam,
+    Sgd,
+}
+
+/// Force-model training settings. Paper values: ResNet-50, 64-d embedding and LSTM, T = 8,
+/// K = 4, γ = 0.8, 20 epochs, lr 0.1 (our default optimiser is Adam at 1e-3, which trains these
+/// small models reliably; `optimizer = "sgd"`, `lr = 0.1` gives the paper's setting).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ForceConfig {
+    pub depth: Depth,
+    pub width: usize,
+    pub embed: usize,
+    pub lstm: bool,
+    pub seq_len: usize,
+    pub per_trajectory: usize,
+    pub gamma: f64,
+    pub epochs: usize,
+    pub batch: usize,
+    pub lr: f64,
+    pub optimizer: Optimizer,
+    pub seed: u64,
+    /// Force range of the sigmoid output, N per axis; from the training labels (with a 5 %
+    /// margin) when absent.
+    pub range: Option<ForceRange>,
+}
+
+impl Default for ForceConfig {
+    fn default() -> Self {
+        Self {
+            depth: Depth::R18,
+            width: 16,
+            embed: 64,
+            lstm: true,
+            seq_len: 8,
+            per_trajectory: 4,
+            gamma: 0.8,
+            epochs: 20,
+            batch: 8,
+            lr: 1e-3,
+            optimizer: Optimizer::Adam,
+            seed: 1,
+            range: None,
+        }
+    }
+}
+
+/// The work range the sigmoid output is scaled to: F = lo + (hi − lo) · σ(z).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ForceRange {
+    pub lo: [f32; 3],
+    pub hi: [f32; 3],
+}
+
+impl ForceRange {
+    /// The labels' bounds with a 5 % margin; an axis without variation gets ±0.5 N so the
+    /// scale stays finite.
+    pub fn from_bounds(b: [(f32, f32); 3]) -> Self {
+        let mut lo = [0.0; 3];
+        let mut hi = [0.0; 3];
+        for a in 0..3 {
+            let (mn, mx) = if b[a].0.is_finite() && b[a].1.is_finite() { b[a] } else { (0.0, 0.0) };
+            let span = mx - mn;
+            if span <= 1e-6 {
+                lo[a] = mn - 0.5;
+                hi[a] = mx + 0.5;
+            } else {
+                lo[a] = mn - 0.05 * span;
+                hi[a] = mx + 0.05 * span;
+            }
+        }
+        Self { lo, hi }
+    }
+    pub fn normalise(&self, f: [f32; 3]) -> [f32; 3] {
+        std::array::from_fn(|a| ((f[a] - self.lo[a]) / (self.hi[a] - self.lo[a])).clamp(0.0, 1.0))
+    }
+    pub fn denormalise(&self, u: [f32; 3]) -> [f32; 3] {
+        std::array::from_fn(|a| self.lo[a] + u[a] * (self.hi[a] - self.lo[a]))
+    }
+}
+
+/// What a model directory says about its model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelInfo {
+    pub format: String,
+    /// A label for tables: `TransForce`, `TransForce (no LSTM)`, `source-only`, …
+    pub method: String,
+    pub spec: ImageSpec,
+    pub shape: ForceShape,
+    pub range: ForceRange,
+    pub config: ForceConfig,
+    /// Epochs completed (the checkpoint holds the weights after this many).
+    pub epochs_done: usize,
+    pub trained_on: String,
+    pub last_loss: f64,
+}
+
+/// A trained model, ready to predict (no autodiff).
+pub struct ForceModel {
+    pub info: ModelInfo,
+    net: ForceNet,
+    dev: Device,
+}
+
+pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
+    ForceShape {
+        depth: cfg.depth,
+        width: cfg.width,
+        embed: cfg.embed,
+        lstm: cfg.lstm,
+        imagenet_stem: spec.width.min(spec.height) >= 96,
+    }
+}
+
+/// The device the trainer computes on: CUDA with the `gpu` feature, else the flex CPU backend.
+pub fn device() -> Device {
+    #[cfg(feature = "gpu")]
+    {
+        Device::cuda(0)
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        Device::flex()
+    }
+}
+
+/// A batch of sequences: images `[B, T, 3, H, W]` and normalised forces `[B, T, 3]`.
+fn batch_tensors(
+    trajs: &[Trajectory],
+    forces: &dyn Fn(usize) -> Vec<[f32; 3]>,
+    seqs: &[&Sequence],
+    spec: &ImageSpec,
+    range: &ForceRange,
+    dev: &Device,
+) -> (Tensor<5>, Tensor<3>) {
+    let t = seqs.first().map_or(0, |s| s.frames.len());
+    let mut frames: Vec<&[u8]> = Vec::with_capacity(seqs.len() * t);
+    let mut y = Vec::with_capacity(seqs.len() * t * 3);
+    for s in seqs {
+        let f = forces(s.traj);
+        for &i in &s.frames {
+            frames.push(trajs[s.traj].frame(i, spec));
+            y.extend_from_slice(&range.normalise(f[i]));
+        }
+    }
+    let x = images_to_tensor(&frames, spec, dev);
+    let [_, c, h, w] = x.dims();
+    let b = seqs.len();
+    (
+        x.reshape([b, t, c, h, w]),
+        Tensor::from_data(TensorData::new(y, [b, t, 3]), dev),
+    )
+}
+
+/// Progress of one training run (returned for tests and the benchmark).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainReport {
+    pub epochs_done: usize,
+    pub last_loss: f64,
+    pub sequences_per_s: f64,
+    pub images_per_s: f64,
+    pub seconds: f64,
+}
+
+/// Train (or resume training of) a force model on `set`, writing checkpoints into `out`.
+pub fn train(
+    set: &LabelledSet,
+    cfg: &ForceConfig,
+    method: &str,
+    out: &Path,
+    resume: bool,
+    progress: bool,
+) -> anyhow::Result<TrainReport> {
+    if cfg.seq_len == 0 || cfg.batch == 0 || cfg.per_trajectory == 0 {
+        bail!("seq_len, batch and per_trajectory must be at least 1");
+    }
+    if !(cfg.gamma > 0.0 && cfg.gamma.is_finite()) || !(cfg.lr > 0.0 && cfg.lr.is_finite()) {
+        bail!("gamma and lr must be positive and finite");
+    }
+    let spec = set.spec;
+    let lengths: Vec<usize> = set.trajectories.iter().map(|t| t.frames).collect();
+    if sample_sequences(&lengths, cfg.seq_len, 1, &mut Rng(0)).is_empty() {
+        bail!(
+            "no trajectory has {} frames: nothing to train on ({} trajectories)",
+            cfg.seq_len,
+            lengths.len()
+        );
+    }
+    fs::create_dir_all(out)?;
+    let dev = device();
+    dev.seed(cfg.seed);
+    let adev = dev.clone().autodiff();
+    let shape = shape_for(cfg, &spec);
+    let mut net = ForceNet::new(&shape, &adev);
+    let mut optim: ModuleOptimizer = match cfg.optimizer {
+        Optimizer::Adam => AdamConfig::new().init(),
+        Optimizer::Sgd => SgdConfig::new().init(),
+    };
+    let mut info = ModelInfo {
+        format: "rig-force-model-1".into(),
+        method: method.into(),
+        spec,
+        shape,
+        range: cfg.range.unwrap_or_else(|| ForceRange::from_bounds(set.force_bounds())),
+        config: cfg.clone(),
+        epochs_done: 0,
+        trained_on: String::new(),
+        last_loss: f64::NAN,
+    };
+    if resume && out.join(MODEL_INFO).is_file() {
+        let old = read_info(out)?;
+        if old.shape != shape || old.spec != spec {
+            bail!(
+                "{} holds a model of another shape or image size; train into a new --out",
+                out.display()
+            );
+        }
+        net.load_from(&mut BurnpackStore::from_file(out.join(RESUME_WEIGHTS)))
+            .map_err(|e| anyhow::anyhow!("cannot load {}: {e:?}", out.join(RESUME_WEIGHTS).display()))?;
+        net = net.fork(&adev);
+        if out.join(OPTIM).is_file() {
+            optim = optim
+                .load(out.join(OPTIM))
+                .map_err(|e| anyhow::anyhow!("cannot load the optimiser state: {e:?}"))?;
+        }
+        info.range = old.range;
+        info.epochs_done = old.epochs_done;
+        info.last_loss = old.last_loss;
+        eprintln!("resuming {} after epoch {}", out.display(), old.epochs_done);
+    }
+    let forces = |i: usize| set.forces(i).to_vec();
+    let steps_per_epoch = sample_sequences(&lengths, cfg.seq_len, cfg.per_trajectory, &mut Rng(0))
+        .len()
+        .div_ceil(cfg.batch);
+    let total = (cfg.epochs.saturating_sub(info.epochs_done) * steps_per_epoch) as u64;
+    let bar = super::progress_bar(progress, total, "force");
+    let t0 = std::time::Instant::now();
+    let mut seqs_done = 0usize;
+    let mut log = fs::OpenOptions::new().create(true).append(true).open(out.join(LOG))?;
+    for epoch in info.epochs_done..cfg.epochs {
+        let mut rng = Rng(cfg.seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9));
+        let mut seqs = sample_sequences(&lengths, cfg.seq_len, cfg.per_trajectory, &mut rng);
+        rng.shuffle(&mut seqs);
+        let mut sum = 0.0;
+        for chunk in seqs.chunks(cfg.batch) {
+            let refs: Vec<&Sequence> = chunk.iter().collect();
+            let (x, y) = batch_tensors(&set.trajectories, &forces, &refs, &spec, &info.range, &adev);
+            let loss = gamma_l1(net.forward(x), y, cfg.gamma);
+            let value = loss.clone().into_scalar::<f32>() as f64;
+            if !value.is_finite() {
+                bar.abandon();
+                bail!(
+                    "the loss became {value} in epoch {} (learning rate {} too high, or bad \
+                     data); training stopped. {}",
+                    epoch + 1,
+                    cfg.lr,
+                    if info.epochs_done > 0 {
+                        format!(
+                            "The last good checkpoint (epoch {}) is kept in {}",
+                            info.epochs_done,
+                            out.display()
+                        )
+                    } else {
+                        "No checkpoint was written.".to_string()
+                    }
+                );
+            }
+            let grads = GradientsParams::from_grads(loss.backward(), &net);
+            net = optim.step(cfg.lr, net, grads);
+            sum += value * chunk.len() as f64;
+            seqs_done += chunk.len();
+            let secs = t0.elapsed().as_secs_f64().max(1e-9);
+            bar.set_message(format!(
+                "epoch {}/{} loss {value:.4} · {:.1} seq/s {:.0} img/s",
+                epoch + 1,
+                cfg.epochs,
+                seqs_done as f64 / secs,
+                (seqs_done * cfg.seq_len) as f64 / secs
+            ));
+            bar.inc(1);
+        }
+        let mean = sum / seqs.len().max(1) as f64;
+        // A step can leave weights that are not finite while this epoch's losses were: check
+        // before the checkpoint is replaced, so the last good one survives.
+        let probe: Vec<&Sequence> = seqs.iter().take(cfg.batch).collect();
+        let (x, _) = batch_tensors(&set.trajectories, &forces, &probe, &spec, &info.range, &dev);
+        let check = net.valid().forward(x).into_data().convert::<f32>().try_to_vec::<f32>();
+        if !check.map_or(false, |v| v.iter().all(|x| x.is_finite())) {
+            bar.abandon();
+            bail!(
+                "the weights are no longer finite after epoch {} (learning rate {} too high?); \
+                 training stopped, the checkpoint of epoch {} is kept",
+                epoch + 1,
+                cfg.lr,
+                info.epochs_done
+            );
+        }
+        info.epochs_done = epoch + 1;
+        info.last_loss = mean;
+        save_checkpoint(out, &net, &optim, &info)?;
+        use std::io::Write as _;
+        writeln!(log, "{},{mean:.6},{:.3}", epoch + 1, t0.elapsed().as_secs_f64())?;
+    }
+    bar.finish_and_clear();
+    let secs = t0.elapsed().as_secs_f64();
+    Ok(TrainReport {
+        epochs_done: info.epochs_done,
+        last_loss: info.last_loss,
+        sequences_per_s: seqs_done as f64 / secs.max(1e-9),
+        images_per_s: (seqs_done * cfg.seq_len) as f64 / secs.max(1e-9),
+        seconds: secs,
+    })
+}
+
+fn save_checkpoint(out: &Path, net: &ForceNet, optim: &ModuleOptimizer, info: &ModelInfo) -> anyhow::Result<()> {
+    // Written beside, then renamed: a crash leaves the previous checkpoint whole.
+    let tmp_w = out.join(format!("{WEIGHTS}.partial"));
+    let _ = fs::remove_file(&tmp_w);
+    net.save_into(&mut SafetensorsStore::from_file(&tmp_w))
+        .map_err(|e| anyhow::anyhow!("cannot write the weights: {e:?}"))?;
+    let tmp_r = out.join(format!("{RESUME_WEIGHTS}.partial"));
+    let _ = fs::remove_file(&tmp_r);
+    net.save_into(&mut BurnpackStore::from_file(&tmp_r))
+        .map_err(|e| anyhow::anyhow!("cannot write the resume weights: {e:?}"))?;
+    let tmp_o = out.join(format!("{OPTIM}.partial"));
+    optim
+        .save(&tmp_o)
+        .map_err(|e| anyhow::anyhow!("cannot write the optimiser state: {e:?}"))?;
+    fs::rename(&tmp_w, out.join(WEIGHTS))?;
+    fs::rename(&tmp_r, out.join(RESUME_WEIGHTS))?;
+    fs::rename(&tmp_o, out.join(OPTIM))?;
+    crate::record::file::write_atomic(&out.join(MODEL_INFO), &serde_json::to_vec_pretty(info)?)?;
+    Ok(())
+}
+
+pub fn read_info(dir: &Path) -> anyhow::Result<ModelInfo> {
+    let p = dir.join(MODEL_INFO);
+    let text = fs::read(&p).with_context(|| format!("{} is not a model directory", dir.display()))?;
+    serde_json::from_slice(&text).with_context(|| format!("{} is not a model description", p.display()))
+}
+
+impl ForceModel {
+    pub fn load(dir: &Path) -> anyhow::Result<Self> {
+        let info = read_info(dir)?;
+        let dev = device();
+        let mut net = ForceNet::new(&info.shape, &dev);
+        net.load_from(&mut SafetensorsStore::from_file(dir.join(WEIGHTS)))
+            .map_err(|e| anyhow::anyhow!("cannot load {}: {e:?}", dir.join(WEIGHTS).display()))?;
+        Ok(Self { info, net, dev })
+    }
+
+    pub fn spec(&self) -> ImageSpec {
+        self.info.spec
+    }
+
+    /// Forces (N) for each frame of each sequence: `[sequence][position]`.
+    pub fn predict(&self, trajs: &[Trajectory], seqs: &[Sequence], batch: usize) -> Vec<Vec<[f32; 3]>> {
+        let spec = self.info.spec;
+        let mut out = Vec::with_capacity(seqs.len());
+        for chunk in seqs.chunks(batch.max(1)) {
+            let refs: Vec<&Sequence> = chunk.iter().collect();
+            let t = chunk[0].frames.len();
+            let frames: Vec<&[u8]> = refs
+                .iter()
+                .flat_map(|s| s.frames.iter().map(|&i| trajs[s.traj].frame(i, &spec)))
+                .collect();
+            let x = images_to_tensor(&frames, &spec, &self.dev);
+            let [_, c, h, w] = x.dims();
+            let y = self.net.forward(x.reshape([chunk.len(), t, c, h, w]));
+            let v: Vec<f32> = y.into_data().convert::<f32>().try_to_vec::<f32>().expect("f32 output");
+            for s in 0..chunk.len() {
+                out.push(
+                    (0..t)
+                        .map(|i| {
+                            let k = (s * t + i) * 3;
+                            self.info.range.denormalise([v[k], v[k + 1], v[k + 2]])
+                        })
+                        .collect(),
+                );
+            }
+        }
+        out
+    }
+}
+
+/// The checkpoint files of a model directory (for listings and tests).
+pub fn checkpoint_files(dir: &Path) -> Vec<PathBuf> {
+    [MODEL_INFO, WEIGHTS, RESUME_WEIGHTS, OPTIM].iter().map(|f| dir.join(f)).collect()
+}

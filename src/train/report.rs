@@ -1,0 +1,235 @@
+//! The result table in the paper's shape (method × modality, MAE and R² per axis, total-force
+//! MAE, per indenter group) as Markdown, CSV and JSON, and predicted-against-true plots.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::metrics;
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Row {
+    pub method: String,
+    pub modality: String,
+    pub group: String,
+    pub mae: [f64; 3],
+    pub r2: [f64; 3],
+    pub total_mae: f64,
+    pub n: usize,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct FidRow {
+    pub group: String,
+    /// Which two image sets: `I_s–I_t` (before translation) or `Î_t–I_t` (after).
+    pub pair: String,
+    pub fid: f64,
+    pub kid: f64,
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct Table {
+    pub rows: Vec<Row>,
+    pub fid: Vec<FidRow>,
+}
+
+fn num(v: f64) -> String {
+    if v.is_finite() { format!("{v:.3}") } else { "—".into() }
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+impl Table {
+    pub fn markdown(&self) -> String {
+        let mut s = String::new();
+        if !self.rows.is_empty() {
+            s.push_str("| Method | Modality | Group | MAE Fx | MAE Fy | MAE Fz | MAE |F| | R² Fx | R² Fy | R² Fz | n |\n");
+            s.push_str("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n");
+            for r in &self.rows {
+                s.push_str(&format!(
+                    "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                    r.method,
+                    r.modality,
+                    r.group,
+                    num(r.mae[0]),
+                    num(r.mae[1]),
+                    num(r.mae[2]),
+                    num(r.total_mae),
+                    num(r.r2[0]),
+                    num(r.r2[1]),
+                    num(r.r2[2]),
+                    r.n
+                ));
+            }
+        }
+        if !self.fid.is_empty() {
+            if !s.is_empty() {
+                s.push('\n');
+            }
+            s.push_str("| Images | Group | FID | KID |\n| --- | --- | ---: | ---: |\n");
+            for f in &self.fid {
+                s.push_str(&format!("| {} | {} | {} | {} |\n", f.pair, f.group, num(f.fid), num(f.kid)));
+            }
+        }
+        s
+    }
+
+    pub fn csv(&self) -> String {
+        let mut s = String::from("method,modality,group,mae_fx,mae_fy,mae_fz,mae_total,r2_fx,r2_fy,r2_fz,n\n");
+        for r in &self.rows {
+            s.push_str(&format!(
+                "{},{},{},{},{},{},{},{},{},{},{}\n",
+                csv_field(&r.method),
+                csv_field(&r.modality),
+                csv_field(&r.group),
+                r.mae[0],
+                r.mae[1],
+                r.mae[2],
+                r.total_mae,
+                r.r2[0],
+                r.r2[1],
+                r.r2[2],
+                r.n
+            ));
+        }
+        s
+    }
+
+    /// `results.md`, `results.csv`, `results.json` in `dir`, each written atomically.
+    pub fn write(&self, dir: &Path) -> anyhow::Result<()> {
+        std::fs::create_dir_all(dir)?;
+        let w = crate::record::file::write_atomic;
+        w(&dir.join("results.md"), self.markdown().as_bytes())?;
+        w(&dir.join("results.csv"), self.csv().as_bytes())?;
+        w(&dir.join("results.json"), &serde_json::to_vec_pretty(self)?)?;
+        Ok(())
+    }
+}
+
+/// Predicted against true force, one panel per axis, with the y = x line; non-finite points are
+/// skipped, and empty or constant data still give a plot.
+pub fn plot_pred_vs_true(path: &Path, title: &str, pred: &[[f64; 3]], truth: &[[f64; 3]]) -> anyhow::Result<()> {
+    let root = SVGBackend::new(path, (1200, 440)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let root = root.titled(title, ("sans-serif", 18))?;
+    let panels = root.split_evenly((1, 3));
+    for (a, panel) in panels.iter().enumerate() {
+        let pts: Vec<(f64, f64)> = truth
+            .iter()
+            .zip(pred)
+            .map(|(t, p)| (t[a], p[a]))
+            .filter(|(x, y)| x.is_finite() && y.is_finite())
+            .collect();
+        let (mut lo, mut hi) = pts
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), (x, y)| (l.min(*x).min(*y), h.max(*x).max(*y)));
+        if !(lo.is_finite() && hi.is_finite()) {
+            (lo, hi) = (-1.0, 1.0);
+        }
+        if hi - lo < 1e-9 {
+            (lo, hi) = (lo - 0.5, hi + 0.5);
+        }
+        let pad = 0.05 * (hi - lo);
+        let (xs, ys): (Vec<f64>, Vec<f64>) = pts.iter().copied().unzip();
+        let caption = format!(
+            "{}: MAE {} N, R² {}",
+            metrics::AXES[a],
+            num(metrics::mae(&ys, &xs)),
+            num(metrics::r2(&ys, &xs))
+        );
+        let mut chart = ChartBuilder::on(panel)
+            .caption(caption, ("sans-serif", 15))
+            .margin(10)
+            .x_label_area_size(36)
+            .y_label_area_size(48)
+            .build_cartesian_2d(lo - pad..hi + pad, lo - pad..hi + pad)?;
+        chart
+            .configure_mesh()
+            .x_desc("true force (N)")
+            .y_desc("predicted force (N)")
+            .draw()?;
+        chart.draw_series(LineSeries::new([(lo, lo), (hi, hi)], BLACK.mix(0.5)))?;
+        chart.draw_series(pts.iter().map(|p| Circle::new(*p, 2, BLUE.mix(0.4).filled())))?;
+    }
+    root.present()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table() -> Table {
+        Table {
+            rows: vec![
+                Row {
+                    method: "TransForce".into(),
+                    modality: "R+M".into(),
+                    group: "seen".into(),
+                    mae: [0.1, 0.2, 0.3],
+                    r2: [0.9, 0.8, f64::NAN],
+                    total_mae: 0.25,
+                    n: 10,
+                },
+                Row {
+                    method: "a, \"b\"".into(),
+                    modality: "M".into(),
+                    group: "unseen".into(),
+                    mae: [1.0, 2.0, 3.0],
+                    r2: [-0.5, 0.0, 1.0],
+                    total_mae: 2.5,
+                    n: 4,
+                },
+            ],
+            fid: vec![FidRow { group: "seen".into(), pair: "I_s–I_t".into(), fid: 12.5, kid: 0.01 }],
+        }
+    }
+
+    #[test]
+    fn markdown_and_csv_have_the_papers_columns() {
+        let md = table().markdown();
+        assert!(md.contains("| TransForce | R+M | seen | 0.100 | 0.200 | 0.300 | 0.250 | 0.900 | 0.800 | — | 10 |"), "{md}");
+        assert!(md.contains("| I_s–I_t | seen | 12.500 | 0.010 |"), "{md}");
+        let csv = table().csv();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines[0], "method,modality,group,mae_fx,mae_fy,mae_fz,mae_total,r2_fx,r2_fy,r2_fz,n");
+        assert_eq!(lines[1], "TransForce,R+M,seen,0.1,0.2,0.3,0.25,0.9,0.8,NaN,10");
+        assert_eq!(lines[2], "\"a, \"\"b\"\"\",M,unseen,1,2,3,2.5,-0.5,0,1,4");
+    }
+
+    #[test]
+    fn write_creates_three_files_and_json_round_trips() {
+        let dir = tempfile::tempdir().unwrap();
+        let t = table();
+        t.write(dir.path()).unwrap();
+        for f in ["results.md", "results.csv", "results.json"] {
+            assert!(dir.path().join(f).is_file());
+        }
+        let back: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.path().join("results.json")).unwrap()).unwrap();
+        assert_eq!(back["rows"][1]["method"], "a, \"b\"");
+        assert_eq!(back["rows"].as_array().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn plots_survive_empty_constant_and_nan_data() {
+        let dir = tempfile::tempdir().unwrap();
+        let cases: Vec<(Vec<[f64; 3]>, Vec<[f64; 3]>)> = vec![
+            (vec![[0.1, 0.2, -1.0], [0.0, 0.3, -2.0]], vec![[0.0, 0.2, -1.1], [0.1, 0.2, -2.2]]),
+            (vec![], vec![]),
+            (vec![[1.0; 3]; 4], vec![[1.0; 3]; 4]),
+            (vec![[f64::NAN, 1.0, f64::INFINITY]], vec![[0.0, 1.0, 2.0]]),
+        ];
+        for (i, (p, t)) in cases.iter().enumerate() {
+            let path = dir.path().join(format!("p{i}.svg"));
+            plot_pred_vs_true(&path, "test", p, t).unwrap();
+            assert!(std::fs::read_to_string(&path).unwrap().contains("<svg"));
+        }
+    }
+}
