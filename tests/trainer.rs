@@ -38,7 +38,11 @@ fn frame(f: [f32; 3]) -> Vec<u8> {
     for y in 0..H {
         for x in 0..W {
             let d2 = (x as f32 - cx).powi(2) + (y as f32 - cy).powi(2);
-            let v = if d2 < 16.0 { 80.0 + 170.0 * (-f[2]).clamp(0.0, 1.0) } else { 60.0 };
+            let v = if d2 < 16.0 {
+                80.0 + 170.0 * (-f[2]).clamp(0.0, 1.0)
+            } else {
+                60.0
+            };
             px.extend_from_slice(&[v as u8, (v * 0.8) as u8, 40]);
         }
     }
@@ -104,7 +108,11 @@ fn predict_all(model: &ForceModel, set: &LabelledSet) -> (Vec<[f32; 3]>, Vec<[f3
 
 fn mae(pred: &[[f32; 3]], truth: &[[f32; 3]]) -> [f32; 3] {
     std::array::from_fn(|a| {
-        pred.iter().zip(truth).map(|(p, t)| (p[a] - t[a]).abs()).sum::<f32>() / pred.len() as f32
+        pred.iter()
+            .zip(truth)
+            .map(|(p, t)| (p[a] - t[a]).abs())
+            .sum::<f32>()
+            / pred.len() as f32
     })
 }
 
@@ -123,7 +131,10 @@ fn a_cyclegan_step_lowers_the_cycle_loss_on_a_fixed_batch() {
         ..TranslateConfig::default()
     };
     let mut gan = CycleGan::new(&cfg);
-    let s: Vec<Vec<u8>> = [[0.0, 0.0, -0.5], [0.5, 0.0, -1.0]].iter().map(|f| frame(*f)).collect();
+    let s: Vec<Vec<u8>> = [[0.0, 0.0, -0.5], [0.5, 0.0, -1.0]]
+        .iter()
+        .map(|f| frame(*f))
+        .collect();
     // The "target sensor": the same scenes with the colour channels swapped.
     let t: Vec<Vec<u8>> = s
         .iter()
@@ -132,7 +143,10 @@ fn a_cyclegan_step_lowers_the_cycle_loss_on_a_fixed_batch() {
     let rs: Vec<&[u8]> = s.iter().map(|x| x.as_slice()).collect();
     let rt: Vec<&[u8]> = t.iter().map(|x| x.as_slice()).collect();
     let dev = gan.dev.clone();
-    let (bs, bt) = (images_to_tensor(&rs, &spec(), &dev), images_to_tensor(&rt, &spec(), &dev));
+    let (bs, bt) = (
+        images_to_tensor(&rs, &spec(), &dev),
+        images_to_tensor(&rt, &spec(), &dev),
+    );
     let before = gan.cycle_loss(bs.clone(), bt.clone());
     for _ in 0..25 {
         let l = gan.step(bs.clone(), bt.clone(), cfg.lr).unwrap();
@@ -147,7 +161,15 @@ fn the_force_model_overfits_a_tiny_dataset_and_round_trips_through_its_checkpoin
     let _serial = serial();
     let set = tiny_set();
     let dir = tempfile::tempdir().unwrap();
-    let r = force::train(&set, &small_force(true, 100), "TransForce", dir.path(), false, false).unwrap();
+    let r = force::train(
+        &set,
+        &small_force(true, 100),
+        "TransForce",
+        dir.path(),
+        false,
+        false,
+    )
+    .unwrap();
     assert_eq!(r.epochs_done, 100);
     let model = ForceModel::load(dir.path()).unwrap();
     let (pred, truth) = predict_all(&model, &set);
@@ -169,7 +191,15 @@ fn no_lstm_and_source_only_run_through_the_same_code_path() {
     let set = tiny_set();
     for (lstm, method) in [(false, "TransForce (no LSTM)"), (true, "source-only")] {
         let dir = tempfile::tempdir().unwrap();
-        force::train(&set, &small_force(lstm, 2), method, dir.path(), false, false).unwrap();
+        force::train(
+            &set,
+            &small_force(lstm, 2),
+            method,
+            dir.path(),
+            false,
+            false,
+        )
+        .unwrap();
         let model = ForceModel::load(dir.path()).unwrap();
         assert_eq!(model.info.shape.lstm, lstm);
         assert_eq!(model.info.method, method);
@@ -189,8 +219,14 @@ fn without_an_lstm_each_frame_is_predicted_alone() {
         let dir = tempfile::tempdir().unwrap();
         force::train(&set, &small_force(lstm, 1), "x", dir.path(), false, false).unwrap();
         let m = ForceModel::load(dir.path()).unwrap();
-        let a = rig::train::data::Sequence { traj: 0, frames: vec![0, 1, 2, 6] };
-        let b = rig::train::data::Sequence { traj: 0, frames: vec![3, 4, 5, 6] };
+        let a = rig::train::data::Sequence {
+            traj: 0,
+            frames: vec![0, 1, 2, 6],
+        };
+        let b = rig::train::data::Sequence {
+            traj: 0,
+            frames: vec![3, 4, 5, 6],
+        };
         let p = m.predict(&set.trajectories, &[a, b], 2);
         if lstm {
             assert_ne!(p[0][3], p[1][3]);
@@ -205,7 +241,10 @@ fn seeds_make_training_repeatable_and_resume_continues_the_same_run() {
     let _serial = serial();
     let set = tiny_set();
     let run = |epochs: usize, seed: u64, dir: &std::path::Path, resume: bool| {
-        let cfg = ForceConfig { seed, ..small_force(true, epochs) };
+        let cfg = ForceConfig {
+            seed,
+            ..small_force(true, epochs)
+        };
         force::train(&set, &cfg, "x", dir, resume, false).unwrap();
         predict_all(&ForceModel::load(dir).unwrap(), &set).0
     };
@@ -216,8 +255,16 @@ fn seeds_make_training_repeatable_and_resume_continues_the_same_run() {
         tempfile::tempdir().unwrap(),
     );
     let straight = run(3, 5, a.path(), false);
-    assert_eq!(run(3, 5, b.path(), false), straight, "same seed, same model");
-    assert_ne!(run(3, 6, c.path(), false), straight, "another seed, another model");
+    assert_eq!(
+        run(3, 5, b.path(), false),
+        straight,
+        "same seed, same model"
+    );
+    assert_ne!(
+        run(3, 6, c.path(), false),
+        straight,
+        "another seed, another model"
+    );
     // Two epochs, then resumed to three: the same weights as three epochs straight.
     run(2, 5, d.path(), false);
     assert_eq!(force::read_info(d.path()).unwrap().epochs_done, 2);
@@ -232,8 +279,13 @@ fn a_non_finite_loss_stops_training_and_keeps_the_last_good_checkpoint() {
     force::train(&set, &small_force(true, 2), "x", dir.path(), false, false).unwrap();
     let good = predict_all(&ForceModel::load(dir.path()).unwrap(), &set).0;
     // An absurd learning rate blows the weights up within the next epoch.
-    let cfg = ForceConfig { lr: 1e30, ..small_force(true, 6) };
-    let err = force::train(&set, &cfg, "x", dir.path(), true, false).unwrap_err().to_string();
+    let cfg = ForceConfig {
+        lr: 1e30,
+        ..small_force(true, 6)
+    };
+    let err = force::train(&set, &cfg, "x", dir.path(), true, false)
+        .unwrap_err()
+        .to_string();
     assert!(
         err.contains("loss became") || err.contains("no longer finite"),
         "unexpected error: {err}"
@@ -258,4 +310,67 @@ fn the_image_pool_returns_as_many_images_as_it_gets() {
         assert!(pool.len() <= 3);
     }
     assert_eq!(pool.len(), 3);
+}
+
+#[test]
+fn recorded_datasets_load_through_the_cache_and_target_forces_stay_out_of_training() {
+    use rig::record::synthetic::{SyntheticSpec, record_dataset};
+    use rig::train::data::{load_eval, load_labelled, load_unlabelled};
+    let dir = tempfile::tempdir().unwrap();
+    let ids: Vec<String> = (0..3).map(|i| format!("t{i}")).collect();
+    let spec_rec = SyntheticSpec {
+        width: 32,
+        height: 24,
+        ..SyntheticSpec::default()
+    };
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(record_dataset(dir.path(), &ids, &spec_rec))
+        .unwrap();
+    let spec = ImageSpec {
+        width: 16,
+        height: 12,
+        modality: Modality::RgbMarker,
+    };
+
+    let set = load_labelled(dir.path(), &spec, false).unwrap();
+    assert_eq!(set.trajectories.len(), 3);
+    let frames = set.trajectories[0].frames;
+    // 400 ms at 33 ms per frame: 12 or 13 frames, each with its paired force.
+    assert!((11..=13).contains(&frames), "{frames} frames");
+    assert_eq!(set.forces(0).len(), frames);
+    assert!(set.forces(0).iter().flatten().all(|v| v.is_finite()));
+    // The decode cache is written beside the files and gives back the same data.
+    assert!(
+        dir.path()
+            .join(".trainer-cache")
+            .read_dir()
+            .unwrap()
+            .count()
+            >= 3
+    );
+    let again = load_labelled(dir.path(), &spec, false).unwrap();
+    assert_eq!(again.trajectories, set.trajectories);
+    assert_eq!(again.forces(2), set.forces(2));
+
+    // The same files as a target-sensor dataset: images for translation, forces for evaluation,
+    // and a refusal for training.
+    let m = dir.path().join("manifest.json");
+    let text = std::fs::read_to_string(&m)
+        .unwrap()
+        .replace("\"role\": \"source\"", "\"role\": \"target\"");
+    std::fs::write(&m, text).unwrap();
+    let err = load_labelled(dir.path(), &spec, false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("evaluation only"), "{err}");
+    assert_eq!(
+        load_unlabelled(dir.path(), &spec, false)
+            .unwrap()
+            .trajectories,
+        set.trajectories
+    );
+    assert_eq!(
+        load_eval(dir.path(), &spec, false).unwrap().forces(1),
+        set.forces(1)
+    );
 }

@@ -5,7 +5,7 @@
 //! - For a few model sizes: held-out MAE against cumulative training time, epoch by epoch.
 //!
 //! Data: a labelled dataset (default `runs/demo/data/source`, which `rig demo --quick` records);
-//! every fourth trajectory is held out for the MAE. Writes `train.csv` and `train.svg`.
+//! a quarter of the trajectories (every shear direction and depth among them) is held out. Writes `train.csv` and `train.svg`.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -59,7 +59,13 @@ fn split_holdout(set: &LabelledSet) -> anyhow::Result<(LabelledSet, LabelledSet)
     let mut tr = (Vec::new(), Vec::new());
     let mut ho = (Vec::new(), Vec::new());
     for (i, t) in set.trajectories.iter().enumerate() {
-        let dst = if i % 4 == 3 { &mut ho } else { &mut tr };
+        // A quarter, rotating through the plan's order so that every shear direction and depth
+        // is both trained on and held out.
+        let dst = if (i + i / 4) % 4 == 3 {
+            &mut ho
+        } else {
+            &mut tr
+        };
         dst.0.push(t.clone());
         dst.1.push(set.forces(i).to_vec());
     }
@@ -95,24 +101,41 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
         .split_once('x')
         .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
         .context("--size must be WIDTHxHEIGHT")?;
-    let spec = ImageSpec { width: w, height: h, modality: Modality::RgbMarker };
+    let spec = ImageSpec {
+        width: w,
+        height: h,
+        modality: Modality::RgbMarker,
+    };
     let all = data::load_labelled(&args.data, &spec, false).with_context(|| {
-        format!("no labelled data in {} (record some with `rig demo --quick` first)", args.data.display())
+        format!(
+            "no labelled data in {} (record some with `rig demo --quick` first)",
+            args.data.display()
+        )
     })?;
     let (train, holdout) = split_holdout(&all)?;
     let tmp = tempfile_dir(&args.out)?;
-    let base = ForceConfig { epochs: 1, ..ForceConfig::default() };
+    let base = ForceConfig {
+        epochs: 1,
+        ..ForceConfig::default()
+    };
 
     // Throughput and latency per depth.
     let mut speed = Vec::new();
     for depth in Depth::ALL {
         let width = if args.quick { 4 } else { 8 };
-        let cfg = ForceConfig { depth, width, ..base.clone() };
+        let cfg = ForceConfig {
+            depth,
+            width,
+            ..base.clone()
+        };
         let dir = tmp.join(format!("speed-{depth}"));
         let r = force::train(&train, &cfg, "bench", &dir, false, false)?;
         let model = ForceModel::load(&dir)?;
         let lengths: Vec<usize> = holdout.trajectories.iter().map(|t| t.frames).collect();
-        let seqs: Vec<_> = eval_windows(&lengths, cfg.seq_len).into_iter().map(|(s, _)| s).collect();
+        let seqs: Vec<_> = eval_windows(&lengths, cfg.seq_len)
+            .into_iter()
+            .map(|(s, _)| s)
+            .collect();
         let frames = seqs.len() * cfg.seq_len;
         let t0 = Instant::now();
         let _ = model.predict(&holdout.trajectories, &seqs, 16);
@@ -130,7 +153,12 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
     let sizes: Vec<(Depth, usize)> = if args.quick {
         vec![(Depth::R18, 4), (Depth::R18, 8)]
     } else {
-        vec![(Depth::R18, 4), (Depth::R18, 8), (Depth::R18, 16), (Depth::R34, 8)]
+        vec![
+            (Depth::R18, 4),
+            (Depth::R18, 8),
+            (Depth::R18, 16),
+            (Depth::R34, 8),
+        ]
     };
     let mut curve = Vec::new();
     for (depth, width) in sizes {
@@ -138,13 +166,23 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
         let dir = tmp.join(format!("curve-{depth}-{width}"));
         let mut secs = 0.0;
         for epoch in 1..=args.epochs {
-            let cfg = ForceConfig { depth, width, epochs: epoch, ..base.clone() };
+            let cfg = ForceConfig {
+                depth,
+                width,
+                epochs: epoch,
+                ..base.clone()
+            };
             let t0 = Instant::now();
             force::train(&train, &cfg, "bench", &dir, epoch > 1, false)?;
             secs += t0.elapsed().as_secs_f64();
             let mae = holdout_mae(&ForceModel::load(&dir)?, &holdout);
             eprintln!("{name} epoch {epoch}: {secs:.1} s, MAE {mae:.3?} N");
-            curve.push(CurvePoint { model: name.clone(), epoch, seconds: secs, mae });
+            curve.push(CurvePoint {
+                model: name.clone(),
+                epoch,
+                seconds: secs,
+                mae,
+            });
         }
     }
     let _ = std::fs::remove_dir_all(&tmp);
@@ -166,7 +204,9 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
         );
     }
     std::fs::create_dir_all(&args.out)?;
-    let mut csv = String::from("kind,model,epoch,seconds,mae_fx,mae_fy,mae_fz,seq_per_s,img_per_s,infer_ms\n");
+    let mut csv = String::from(
+        "kind,model,epoch,seconds,mae_fx,mae_fy,mae_fz,seq_per_s,img_per_s,infer_ms\n",
+    );
     for r in &speed {
         csv.push_str(&format!(
             "speed,resnet{} w{},,,,,,{},{},{}\n",
@@ -181,7 +221,11 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
     }
     std::fs::write(args.out.join("train.csv"), csv)?;
     plot(&curve, &args.out.join("train.svg"))?;
-    println!("wrote {} and {}", args.out.join("train.csv").display(), args.out.join("train.svg").display());
+    println!(
+        "wrote {} and {}",
+        args.out.join("train.csv").display(),
+        args.out.join("train.svg").display()
+    );
     Ok(())
 }
 
@@ -199,7 +243,10 @@ fn plot(curve: &[CurvePoint], path: &Path) -> anyhow::Result<()> {
     let root = SVGBackend::new(path, (800, 560)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
-        .caption("rig bench train: held-out force MAE against training time (CPU)", ("sans-serif", 20))
+        .caption(
+            "rig bench train: held-out force MAE against training time (CPU)",
+            ("sans-serif", 20),
+        )
         .margin(16)
         .x_label_area_size(48)
         .y_label_area_size(64)
@@ -213,7 +260,11 @@ fn plot(curve: &[CurvePoint], path: &Path) -> anyhow::Result<()> {
     names.dedup();
     for (i, name) in names.iter().enumerate() {
         let colour = Palette99::pick(i).to_rgba();
-        let pts: Vec<(f64, f64)> = curve.iter().filter(|p| p.model == *name).map(|p| (p.seconds, mean(p))).collect();
+        let pts: Vec<(f64, f64)> = curve
+            .iter()
+            .filter(|p| p.model == *name)
+            .map(|p| (p.seconds, mean(p)))
+            .collect();
         chart
             .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))?
             .label(*name)

@@ -13,7 +13,9 @@ use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
-use super::data::{ImageSpec, LabelledSet, Rng, Trajectory, UnlabelledSet, images_to_tensor, tensor_to_images};
+use super::data::{
+    ImageSpec, LabelledSet, Rng, Trajectory, UnlabelledSet, images_to_tensor, tensor_to_images,
+};
 use super::nn::{Discriminator, GanShape, Generator, l1, lsgan};
 
 const INFO: &str = "translator.json";
@@ -83,7 +85,10 @@ pub struct ImagePool {
 
 impl ImagePool {
     pub fn new(cap: usize) -> Self {
-        Self { cap, images: Vec::new() }
+        Self {
+            cap,
+            images: Vec::new(),
+        }
     }
     /// Images `[N, 3, H, W]` (detached) in, as many out.
     pub fn query(&mut self, fakes: Tensor<4>, rng: &mut Rng) -> Tensor<4> {
@@ -141,7 +146,12 @@ impl CycleGan {
         let dev = super::force::device();
         dev.seed(cfg.seed);
         let adev = dev.autodiff();
-        let adam = || AdamConfig::new().with_beta_1(cfg.beta1).with_beta_2(0.999).init();
+        let adam = || {
+            AdamConfig::new()
+                .with_beta_1(cfg.beta1)
+                .with_beta_2(0.999)
+                .init()
+        };
         Self {
             gens: Generators {
                 s2t: Generator::new(&cfg.shape, &adev),
@@ -163,7 +173,12 @@ impl CycleGan {
 
     /// One generator step then one discriminator step on a batch of real source and target
     /// images (NCHW in [-1, 1], on `self.dev`).
-    pub fn step(&mut self, real_s: Tensor<4>, real_t: Tensor<4>, lr: f64) -> anyhow::Result<Losses> {
+    pub fn step(
+        &mut self,
+        real_s: Tensor<4>,
+        real_t: Tensor<4>,
+        lr: f64,
+    ) -> anyhow::Result<Losses> {
         let c = &self.cfg;
         // Generators: fool both discriminators, reconstruct both ways, leave the target alone.
         let fake_t = self.gens.s2t.forward(real_s.clone());
@@ -173,7 +188,8 @@ impl CycleGan {
         let adv = lsgan(self.discs.t.forward(fake_t.clone()), 1.0)
             + lsgan(self.discs.s.forward(fake_s.clone()), 1.0);
         let cycle = l1(rec_s, real_s.clone()) + l1(rec_t, real_t.clone());
-        let mut loss_g = adv.clone().mul_scalar(c.lambda_adv) + cycle.clone().mul_scalar(c.lambda_cyc);
+        let mut loss_g =
+            adv.clone().mul_scalar(c.lambda_adv) + cycle.clone().mul_scalar(c.lambda_cyc);
         let mut identity = 0.0;
         if c.lambda_idt > 0.0 {
             let idt = l1(self.gens.s2t.forward(real_t.clone()), real_t.clone())
@@ -195,8 +211,9 @@ impl CycleGan {
         // Discriminators: real → 1, (pooled) fake → 0, halved as in the reference.
         let fake_t = self.pool_t.query(fake_t.detach(), &mut self.rng);
         let fake_s = self.pool_s.query(fake_s.detach(), &mut self.rng);
-        let loss_d = (lsgan(self.discs.t.forward(real_t), 1.0) + lsgan(self.discs.t.forward(fake_t), 0.0))
-            .mul_scalar(0.5)
+        let loss_d = (lsgan(self.discs.t.forward(real_t), 1.0)
+            + lsgan(self.discs.t.forward(fake_t), 0.0))
+        .mul_scalar(0.5)
             + (lsgan(self.discs.s.forward(real_s), 1.0) + lsgan(self.discs.s.forward(fake_s), 0.0))
                 .mul_scalar(0.5);
         let d_v = loss_d.clone().into_scalar::<f32>() as f64;
@@ -270,8 +287,12 @@ pub fn translate(
     if target.spec != spec {
         bail!("source and target images must share one size and modality");
     }
-    if spec.width % 4 != 0 || spec.height % 4 != 0 {
-        bail!("image width and height must be multiples of 4 for the generator (got {}×{})", spec.width, spec.height);
+    if !spec.width.is_multiple_of(4) || !spec.height.is_multiple_of(4) {
+        bail!(
+            "image width and height must be multiples of 4 for the generator (got {}×{})",
+            spec.width,
+            spec.height
+        );
     }
     let n_s: usize = source.trajectories.iter().map(|t| t.frames).sum();
     let n_t: usize = target.trajectories.iter().map(|t| t.frames).sum();
@@ -279,7 +300,10 @@ pub fn translate(
         bail!("translation needs images of both sensors ({n_s} source, {n_t} target)");
     }
     let batch = cfg.batch.max(1);
-    let per_epoch = cfg.steps_per_epoch.unwrap_or(n_s.max(n_t).div_ceil(batch)).max(1);
+    let per_epoch = cfg
+        .steps_per_epoch
+        .unwrap_or(n_s.max(n_t).div_ceil(batch))
+        .max(1);
     let iterations = per_epoch * cfg.epochs;
     let mut gan = CycleGan::new(cfg);
     let mut rng = Rng(cfg.seed);
@@ -297,8 +321,16 @@ pub fn translate(
         } else {
             cfg.lr * (1.0 - (it - half) as f64 / (iterations - half).max(1) as f64)
         };
-        let s = images_to_tensor(&pick(&source.trajectories, &spec, batch, &mut rng), &spec, &gan.dev);
-        let t = images_to_tensor(&pick(&target.trajectories, &spec, batch, &mut rng), &spec, &gan.dev);
+        let s = images_to_tensor(
+            &pick(&source.trajectories, &spec, batch, &mut rng),
+            &spec,
+            &gan.dev,
+        );
+        let t = images_to_tensor(
+            &pick(&target.trajectories, &spec, batch, &mut rng),
+            &spec,
+            &gan.dev,
+        );
         last = gan
             .step(s, t, lr)
             .with_context(|| format!("translation stopped at iteration {}", it + 1))?;
@@ -336,10 +368,42 @@ pub fn translate(
     let tdir = out.join("translator");
     fs::create_dir_all(&tdir)?;
     for (name, r) in [
-        ("g_s2t", gan.gens.s2t.clone().save_into(&mut SafetensorsStore::from_file(tdir.join("g_s2t.safetensors")))),
-        ("g_t2s", gan.gens.t2s.clone().save_into(&mut SafetensorsStore::from_file(tdir.join("g_t2s.safetensors")))),
-        ("d_t", gan.discs.t.clone().save_into(&mut SafetensorsStore::from_file(tdir.join("d_t.safetensors")))),
-        ("d_s", gan.discs.s.clone().save_into(&mut SafetensorsStore::from_file(tdir.join("d_s.safetensors")))),
+        (
+            "g_s2t",
+            gan.gens
+                .s2t
+                .clone()
+                .save_into(&mut SafetensorsStore::from_file(
+                    tdir.join("g_s2t.safetensors"),
+                )),
+        ),
+        (
+            "g_t2s",
+            gan.gens
+                .t2s
+                .clone()
+                .save_into(&mut SafetensorsStore::from_file(
+                    tdir.join("g_t2s.safetensors"),
+                )),
+        ),
+        (
+            "d_t",
+            gan.discs
+                .t
+                .clone()
+                .save_into(&mut SafetensorsStore::from_file(
+                    tdir.join("d_t.safetensors"),
+                )),
+        ),
+        (
+            "d_s",
+            gan.discs
+                .s
+                .clone()
+                .save_into(&mut SafetensorsStore::from_file(
+                    tdir.join("d_s.safetensors"),
+                )),
+        ),
     ] {
         r.map_err(|e| anyhow::anyhow!("cannot write {name}: {e:?}"))?;
     }
@@ -394,8 +458,23 @@ fn sample_grid(
     for r in 0..rows {
         for (col, px) in [s[r], fake[r].as_slice(), t[r]].into_iter().enumerate() {
             let img = image::RgbImage::from_raw(w, h, px.to_vec()).context("frame size")?;
-            image::imageops::replace(&mut grid, &img, (col as u32 * w) as i64, (r as u32 * h) as i64);
+            image::imageops::replace(
+                &mut grid,
+                &img,
+                (col as u32 * w) as i64,
+                (r as u32 * h) as i64,
+            );
         }
+    }
+    // Small network inputs are enlarged (nearest neighbour) so the grid can be looked at.
+    let k = (96 / h.max(1)).max(1);
+    if k > 1 {
+        grid = image::imageops::resize(
+            &grid,
+            grid.width() * k,
+            grid.height() * k,
+            image::imageops::FilterType::Nearest,
+        );
     }
     Ok(grid)
 }

@@ -155,7 +155,11 @@ impl LabelledSet {
         }
     }
     /// Keep the images, replace them by others of the same count (the translator's output).
-    pub fn with_images(&self, spec: ImageSpec, trajectories: Vec<Trajectory>) -> anyhow::Result<Self> {
+    pub fn with_images(
+        &self,
+        spec: ImageSpec,
+        trajectories: Vec<Trajectory>,
+    ) -> anyhow::Result<Self> {
         Self::from_parts(spec, trajectories, self.forces.clone())
     }
     /// Per-axis (min, max) of every force.
@@ -205,14 +209,27 @@ fn check_parts(
     forces: &[Vec<[f32; 3]>],
 ) -> anyhow::Result<()> {
     if trajectories.len() != forces.len() {
-        bail!("{} trajectories but {} force lists", trajectories.len(), forces.len());
+        bail!(
+            "{} trajectories but {} force lists",
+            trajectories.len(),
+            forces.len()
+        );
     }
     for (t, f) in trajectories.iter().zip(forces) {
         if t.pixels.len() != t.frames * spec.frame_bytes() {
-            bail!("trajectory {}: pixel buffer does not match {} frames", t.id, t.frames);
+            bail!(
+                "trajectory {}: pixel buffer does not match {} frames",
+                t.id,
+                t.frames
+            );
         }
         if f.len() != t.frames {
-            bail!("trajectory {}: {} frames but {} forces", t.id, t.frames, f.len());
+            bail!(
+                "trajectory {}: {} frames but {} forces",
+                t.id,
+                t.frames,
+                f.len()
+            );
         }
         if f.iter().flatten().any(|v| !v.is_finite()) {
             bail!("trajectory {}: a force label is not finite", t.id);
@@ -223,6 +240,11 @@ fn check_parts(
 
 // ---------------------------------------------------------------------------------------------
 // Loading
+
+/// Forces of each trajectory's frames, N.
+type ForceLists = Vec<Vec<[f32; 3]>>;
+/// A cache entry: pixels, frame count, forces.
+type Cached = (Vec<u8>, usize, Option<Vec<[f32; 3]>>);
 
 /// One decoded trajectory with its forces where the file has them.
 struct Loaded {
@@ -261,7 +283,11 @@ pub fn role_of(dir: &Path) -> anyhow::Result<String> {
     }
     let mut roles: Vec<String> = find_runs(dir)?
         .iter()
-        .map(|r| Manifest::load(r).map(|m| m.sensor.role).map_err(anyhow::Error::msg))
+        .map(|r| {
+            Manifest::load(r)
+                .map(|m| m.sensor.role)
+                .map_err(anyhow::Error::msg)
+        })
         .collect::<anyhow::Result<_>>()?;
     roles.sort();
     roles.dedup();
@@ -288,7 +314,11 @@ pub fn load_labelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Re
 }
 
 /// Images only, from any dataset (forces are not even read).
-pub fn load_unlabelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result<UnlabelledSet> {
+pub fn load_unlabelled(
+    dir: &Path,
+    spec: &ImageSpec,
+    progress: bool,
+) -> anyhow::Result<UnlabelledSet> {
     let loaded = load_any(dir, spec, false, progress)?;
     Ok(UnlabelledSet {
         spec: *spec,
@@ -306,12 +336,16 @@ pub fn load_eval(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result
 fn labelled_parts(
     loaded: Vec<Loaded>,
     dir: &Path,
-) -> anyhow::Result<(Vec<Trajectory>, Vec<Vec<[f32; 3]>>)> {
+) -> anyhow::Result<(Vec<Trajectory>, ForceLists)> {
     let mut trajs = Vec::new();
     let mut forces = Vec::new();
     for l in loaded {
         let f = l.forces.with_context(|| {
-            format!("{}: trajectory {} has no force labels", dir.display(), l.traj.id)
+            format!(
+                "{}: trajectory {} has no force labels",
+                dir.display(),
+                l.traj.id
+            )
         })?;
         trajs.push(l.traj);
         forces.push(f);
@@ -319,7 +353,12 @@ fn labelled_parts(
     Ok((trajs, forces))
 }
 
-fn load_any(dir: &Path, spec: &ImageSpec, want_forces: bool, progress: bool) -> anyhow::Result<Vec<Loaded>> {
+fn load_any(
+    dir: &Path,
+    spec: &ImageSpec,
+    want_forces: bool,
+    progress: bool,
+) -> anyhow::Result<Vec<Loaded>> {
     if dir.join(PREPARED_INDEX).is_file() {
         return load_prepared(dir, spec, want_forces);
     }
@@ -340,19 +379,25 @@ fn load_any(dir: &Path, spec: &ImageSpec, want_forces: bool, progress: bool) -> 
         bail!("{} has no complete trajectory", dir.display());
     }
     let bar = super::progress_bar(progress, jobs.len() as u64, "decoding");
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(jobs.len());
+    let workers = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(jobs.len());
     let next = std::sync::atomic::AtomicUsize::new(0);
     let mut results: Vec<Option<anyhow::Result<Loaded>>> = (0..jobs.len()).map(|_| None).collect();
     let slots = std::sync::Mutex::new(&mut results);
     std::thread::scope(|s| {
         for _ in 0..workers {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some((path, id, indenter, params)) = jobs.get(i) else { break };
-                let r = load_trajectory(path, id, indenter, spec, params, want_forces)
-                    .with_context(|| format!("{}", path.display()));
-                bar.inc(1);
-                slots.lock().expect("loader poisoned")[i] = Some(r);
+            s.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some((path, id, indenter, params)) = jobs.get(i) else {
+                        break;
+                    };
+                    let r = load_trajectory(path, id, indenter, spec, params, want_forces)
+                        .with_context(|| format!("{}", path.display()));
+                    bar.inc(1);
+                    slots.lock().expect("loader poisoned")[i] = Some(r);
+                }
             });
         }
     });
@@ -369,7 +414,9 @@ fn marker_params(config: &serde_json::Value) -> MarkerParams {
     let dot = optics["markers"]["dot_diameter_mm"].as_f64();
     let mm_px = optics["mm_per_px"].as_f64();
     match (dot, mm_px) {
-        (Some(d), Some(s)) if d > 0.0 && s > 0.0 => MarkerParams::for_dot_radius((d / 2.0 / s) as f32),
+        (Some(d), Some(s)) if d > 0.0 && s > 0.0 => {
+            MarkerParams::for_dot_radius((d / 2.0 / s) as f32)
+        }
         _ => MarkerParams::default(),
     }
 }
@@ -466,16 +513,17 @@ pub fn prepare_image(img: &image::RgbImage, spec: &ImageSpec, params: &MarkerPar
     let out = if m.width() == spec.width && m.height() == spec.height {
         m
     } else {
-        image::imageops::resize(&m, spec.width, spec.height, image::imageops::FilterType::Triangle)
+        image::imageops::resize(
+            &m,
+            spec.width,
+            spec.height,
+            image::imageops::FilterType::Triangle,
+        )
     };
     out.into_raw()
 }
 
-fn read_cache(
-    path: &Path,
-    stamp: (u64, u64),
-    spec: &ImageSpec,
-) -> Option<(Vec<u8>, usize, Option<Vec<[f32; 3]>>)> {
+fn read_cache(path: &Path, stamp: (u64, u64), spec: &ImageSpec) -> Option<Cached> {
     let mut f = fs::File::open(path).ok()?;
     let mut buf = Vec::new();
     f.read_to_end(&mut buf).ok()?;
@@ -558,7 +606,8 @@ struct PreparedTrajectory {
 fn read_prepared_index(dir: &Path) -> anyhow::Result<PreparedIndex> {
     let path = dir.join(PREPARED_INDEX);
     let text = fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
-    serde_json::from_slice(&text).with_context(|| format!("{} is not a prepared index", path.display()))
+    serde_json::from_slice(&text)
+        .with_context(|| format!("{} is not a prepared index", path.display()))
 }
 
 /// Write a labelled set as a prepared dataset (`prepared.json` + `frames.bin`), atomically.
@@ -591,7 +640,10 @@ pub fn write_prepared(dir: &Path, set: &LabelledSet, role: &str) -> anyhow::Resu
         f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
     }
     fs::rename(&tmp, dir.join(PREPARED_FRAMES))?;
-    crate::record::file::write_atomic(&dir.join(PREPARED_INDEX), &serde_json::to_vec_pretty(&index)?)?;
+    crate::record::file::write_atomic(
+        &dir.join(PREPARED_INDEX),
+        &serde_json::to_vec_pretty(&index)?,
+    )?;
     Ok(())
 }
 
@@ -603,9 +655,17 @@ fn load_prepared(dir: &Path, spec: &ImageSpec, want_forces: bool) -> anyhow::Res
         modality: index.modality,
     };
     let all = fs::read(dir.join(PREPARED_FRAMES)).context("cannot read frames.bin")?;
-    let need: usize = index.trajectories.iter().map(|t| t.frames * stored.frame_bytes()).sum();
+    let need: usize = index
+        .trajectories
+        .iter()
+        .map(|t| t.frames * stored.frame_bytes())
+        .sum();
     if all.len() != need {
-        bail!("{}: frames.bin holds {} bytes, the index needs {need}", dir.display(), all.len());
+        bail!(
+            "{}: frames.bin holds {} bytes, the index needs {need}",
+            dir.display(),
+            all.len()
+        );
     }
     if stored.modality != Modality::RgbMarker && stored.modality != spec.modality {
         bail!(
@@ -725,7 +785,11 @@ pub fn images_to_tensor(frames: &[&[u8]], spec: &ImageSpec, dev: &Device) -> Ten
 /// An NCHW tensor in [-1, 1] back to RGB u8 frames (HWC), clamped.
 pub fn tensor_to_images(t: Tensor<4>) -> Vec<Vec<u8>> {
     let [n, c, h, w] = t.dims();
-    let v: Vec<f32> = t.into_data().convert::<f32>().try_to_vec::<f32>().expect("f32 tensor");
+    let v: Vec<f32> = t
+        .into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .expect("f32 tensor");
     (0..n)
         .map(|i| {
             let mut out = vec![0u8; h * w * 3];
@@ -733,7 +797,8 @@ pub fn tensor_to_images(t: Tensor<4>) -> Vec<Vec<u8>> {
                 for x in 0..w {
                     for ch in 0..c.min(3) {
                         let val = v[((i * c + ch) * h + y) * w + x];
-                        out[(y * w + x) * 3 + ch] = ((val + 1.0) * 127.5).round().clamp(0.0, 255.0) as u8;
+                        out[(y * w + x) * 3 + ch] =
+                            ((val + 1.0) * 127.5).round().clamp(0.0, 255.0) as u8;
                     }
                 }
             }
@@ -760,7 +825,11 @@ mod tests {
             assert!(*s.frames.last().unwrap() < lens[s.traj]);
         }
         // Exactly 8 of 8 frames: the whole trajectory.
-        assert!(a.iter().filter(|s| s.traj == 2).all(|s| s.frames == (0..8).collect::<Vec<_>>()));
+        assert!(
+            a.iter()
+                .filter(|s| s.traj == 2)
+                .all(|s| s.frames == (0..8).collect::<Vec<_>>())
+        );
         assert_ne!(a, sample_sequences(&lens, 8, 4, &mut Rng(8)));
     }
 
@@ -776,7 +845,11 @@ mod tests {
 
     #[test]
     fn image_tensor_round_trip_is_exact() {
-        let spec = ImageSpec { width: 4, height: 3, modality: Modality::RgbMarker };
+        let spec = ImageSpec {
+            width: 4,
+            height: 3,
+            modality: Modality::RgbMarker,
+        };
         let a: Vec<u8> = (0..36).map(|i| (i * 7) as u8).collect();
         let b: Vec<u8> = (0..36).map(|i| 255 - i as u8).collect();
         let t = images_to_tensor(&[&a, &b], &spec, &Device::flex());
@@ -786,10 +859,21 @@ mod tests {
 
     #[test]
     fn labelled_parts_are_checked() {
-        let spec = ImageSpec { width: 2, height: 2, modality: Modality::RgbMarker };
-        let traj = Trajectory { id: "t".into(), indenter: "cone".into(), pixels: vec![0; 24], frames: 2 };
+        let spec = ImageSpec {
+            width: 2,
+            height: 2,
+            modality: Modality::RgbMarker,
+        };
+        let traj = Trajectory {
+            id: "t".into(),
+            indenter: "cone".into(),
+            pixels: vec![0; 24],
+            frames: 2,
+        };
         assert!(LabelledSet::from_parts(spec, vec![traj.clone()], vec![vec![[0.0; 3]; 2]]).is_ok());
-        assert!(LabelledSet::from_parts(spec, vec![traj.clone()], vec![vec![[0.0; 3]; 3]]).is_err());
+        assert!(
+            LabelledSet::from_parts(spec, vec![traj.clone()], vec![vec![[0.0; 3]; 3]]).is_err()
+        );
         let nan = LabelledSet::from_parts(spec, vec![traj], vec![vec![[f32::NAN, 0.0, 0.0]; 2]]);
         assert!(nan.unwrap_err().to_string().contains("not finite"));
     }

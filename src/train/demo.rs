@@ -43,6 +43,7 @@ pub struct DemoPlan {
     pub unseen: Vec<&'static str>,
     pub directions_deg: Vec<f64>,
     pub camera: (u32, u32),
+    pub fps: f64,
     pub spec: (u32, u32),
     pub modalities: Vec<Modality>,
     pub translate: TranslateConfig,
@@ -53,10 +54,11 @@ impl DemoPlan {
     pub fn new(quick: bool) -> Self {
         if quick {
             Self {
-                seen: vec!["sphere", "cylinder", "hexagon"],
+                seen: vec!["sphere", "hemisphere", "prism"],
                 unseen: vec!["cone"],
                 directions_deg: vec![0.0, 90.0, 180.0, 270.0],
                 camera: (160, 120),
+                fps: 10.0,
                 spec: (32, 24),
                 modalities: vec![Modality::RgbMarker],
                 translate: TranslateConfig {
@@ -66,25 +68,30 @@ impl DemoPlan {
                         res_blocks: 2,
                         disc_layers: 2,
                     },
+                    // Five times the paper's rate: these tiny networks get a few hundred
+                    // iterations, not 30 epochs.
+                    lr: 1e-3,
                     batch: 4,
-                    epochs: 2,
-                    steps_per_epoch: Some(150),
+                    epochs: 3,
+                    steps_per_epoch: Some(200),
                     ..TranslateConfig::default()
                 },
                 force: ForceConfig {
                     depth: Depth::R18,
                     width: 8,
                     epochs: 12,
-                    batch: 8,
+                    batch: 16,
+                    lr: 2e-3,
                     ..ForceConfig::default()
                 },
             }
         } else {
             Self {
-                seen: vec!["sphere", "cylinder", "hexagon", "moon", "prism", "dots"],
-                unseen: vec!["cone", "triangle"],
+                seen: vec!["sphere", "hemisphere", "prism", "dots", "line", "random"],
+                unseen: vec!["cone", "sphere_s"],
                 directions_deg: (0..12).map(|k| k as f64 * 30.0).collect(),
                 camera: (320, 240),
+                fps: 25.0,
                 spec: (64, 48),
                 modalities: Modality::ALL.to_vec(),
                 translate: TranslateConfig {
@@ -113,6 +120,7 @@ pub fn demo_config(base: RigConfig, plan: &DemoPlan) -> RigConfig {
         let scale = cam.width_px as f64 / w as f64;
         cam.width_px = w;
         cam.height_px = h;
+        cam.fps = plan.fps;
         if let Some(o) = c.optics.as_mut() {
             o.width_px = w;
             o.height_px = h;
@@ -182,11 +190,19 @@ pub fn run(quick: bool, out: &Path) -> anyhow::Result<Table> {
     let target_images = data::load_unlabelled(&tgt_dir, &rgbm, progress)?;
     // The translator sees target images of the seen indenters only.
     let mut target_seen = target_images.clone();
-    target_seen.trajectories.retain(|t| split.trains_on(&t.indenter));
+    target_seen
+        .trajectories
+        .retain(|t| split.trains_on(&t.indenter));
 
     eprintln!("[2/4] translating source → target style (CycleGAN)");
     let t1 = std::time::Instant::now();
-    let translated = super::cyclegan::translate(&source, &target_seen, &plan.translate, &out.join("translate"), progress)?;
+    let translated = super::cyclegan::translate(
+        &source,
+        &target_seen,
+        &plan.translate,
+        &out.join("translate"),
+        progress,
+    )?;
     eprintln!(
         "      {} iterations in {:.0} s, cycle loss {:.3}",
         translated.info.iterations,
@@ -197,34 +213,70 @@ pub fn run(quick: bool, out: &Path) -> anyhow::Result<Table> {
         rows: Vec::new(),
         fid: Vec::new(),
     };
-    table.fid.extend(eval::fid_rows("I_s–I_t", &data::load_unlabelled(&src_dir, &rgbm, false)?, &target_images, &split));
-    table.fid.extend(eval::fid_rows("Î_t–I_t", &translated.set.images(), &target_images, &split));
+    table.fid.extend(eval::fid_rows(
+        "I_s–I_t",
+        &data::load_unlabelled(&src_dir, &rgbm, false)?,
+        &target_images,
+        &split,
+    ));
+    table.fid.extend(eval::fid_rows(
+        "Î_t–I_t",
+        &translated.set.images(),
+        &target_images,
+        &split,
+    ));
 
     eprintln!("[3/4] training force models");
     let translated_dir = out.join("translate/translated");
     let mut models: Vec<(String, PathBuf)> = Vec::new();
     for &m in &plan.modalities {
-        let spec = ImageSpec { modality: m, ..rgbm };
+        let spec = ImageSpec {
+            modality: m,
+            ..rgbm
+        };
         let tr = data::load_labelled(&translated_dir, &spec, progress)?;
         for (lstm, name) in [(true, "TransForce"), (false, "TransForce (no LSTM)")] {
-            let dir = out.join(format!("models/{}-{}", eval::slug(name), eval::slug(m.name())));
-            let cfg = ForceConfig { lstm, ..plan.force.clone() };
+            let dir = out.join(format!(
+                "models/{}-{}",
+                eval::slug(name),
+                eval::slug(m.name())
+            ));
+            let cfg = ForceConfig {
+                lstm,
+                ..plan.force.clone()
+            };
             let t2 = std::time::Instant::now();
             let r = force::train(&tr, &cfg, name, &dir, false, progress)?;
-            eprintln!("      {name} {}: loss {:.4}, {:.0} s", m.paper_name(), r.last_loss, t2.elapsed().as_secs_f64());
+            eprintln!(
+                "      {name} {}: loss {:.4}, {:.0} s",
+                m.paper_name(),
+                r.last_loss,
+                t2.elapsed().as_secs_f64()
+            );
             models.push((name.into(), dir));
         }
         let src = data::load_labelled(&src_dir, &spec, progress)?.seen_only(&split);
         let dir = out.join(format!("models/source-only-{}", eval::slug(m.name())));
         let t2 = std::time::Instant::now();
         let r = force::train(&src, &plan.force, "source-only", &dir, false, progress)?;
-        eprintln!("      source-only {}: loss {:.4}, {:.0} s", m.paper_name(), r.last_loss, t2.elapsed().as_secs_f64());
+        eprintln!(
+            "      source-only {}: loss {:.4}, {:.0} s",
+            m.paper_name(),
+            r.last_loss,
+            t2.elapsed().as_secs_f64()
+        );
         models.push(("source-only".into(), dir));
     }
 
     eprintln!("[4/4] evaluating on the target sensor");
     for (_, dir) in &models {
-        table.rows.extend(eval::evaluate(dir, &tgt_dir, &out.join("results"), &split, progress)?);
+        table.rows.extend(eval::evaluate(
+            dir,
+            &tgt_dir,
+            &out.join("results"),
+            &split,
+            progress,
+        )?);
     }
     table.write(&out.join("results"))?;
     eprintln!("      total {:.0} s", t0.elapsed().as_secs_f64());
@@ -260,7 +312,11 @@ pub fn demo_command(args: &DemoArgs) -> anyhow::Result<()> {
             .collect();
         println!(
             "TransForce beats source-only ({modality}, {group}): {} [{}]",
-            if wins.iter().all(|w| *w) { "yes, on every axis" } else { "NOT on every axis" },
+            if wins.iter().all(|w| *w) {
+                "yes, on every axis"
+            } else {
+                "NOT on every axis"
+            },
             axes.join(" ")
         );
     }

@@ -93,18 +93,38 @@ pub fn rows(method: &str, modality: &str, p: &Predictions, split: &Split) -> Vec
 }
 
 /// Evaluate a model directory on a target dataset; writes the table and the plots into `out`.
-pub fn evaluate(model_dir: &Path, data: &Path, out: &Path, split: &Split, progress: bool) -> anyhow::Result<Vec<Row>> {
+pub fn evaluate(
+    model_dir: &Path,
+    data: &Path,
+    out: &Path,
+    split: &Split,
+    progress: bool,
+) -> anyhow::Result<Vec<Row>> {
     let model = ForceModel::load(model_dir)?;
     let set = super::data::load_eval(data, &model.spec(), progress)?;
     let p = predict(&model, &set);
     if p.pred.is_empty() {
-        anyhow::bail!("{} has no trajectory of {} frames to evaluate", data.display(), model.info.config.seq_len);
+        anyhow::bail!(
+            "{} has no trajectory of {} frames to evaluate",
+            data.display(),
+            model.info.config.seq_len
+        );
     }
-    let rows = rows(&model.info.method, model.spec().modality.paper_name(), &p, split);
+    let rows = rows(
+        &model.info.method,
+        model.spec().modality.paper_name(),
+        &p,
+        split,
+    );
     std::fs::create_dir_all(out)?;
     super::report::plot_pred_vs_true(
         &out.join(format!("pred-vs-true-{}.svg", slug(&model.info.method))),
-        &format!("{} ({}) on {}", model.info.method, model.spec().modality.paper_name(), data.display()),
+        &format!(
+            "{} ({}) on {}",
+            model.info.method,
+            model.spec().modality.paper_name(),
+            data.display()
+        ),
         &p.pred,
         &p.truth,
     )?;
@@ -113,7 +133,13 @@ pub fn evaluate(model_dir: &Path, data: &Path, out: &Path, split: &Split, progre
 
 pub fn slug(s: &str) -> String {
     s.chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '-' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
         .collect::<String>()
         .split('-')
         .filter(|p| !p.is_empty())
@@ -138,7 +164,11 @@ pub fn features(frame: &[u8], spec: &ImageSpec) -> Vec<f64> {
         for x in 0..w {
             let cell = (y * g / h.max(1)) * g + x * g / w.max(1);
             let p = &frame[(y * w + x) * 3..(y * w + x) * 3 + 3];
-            let rgb = [p[0] as f64 / 255.0, p[1] as f64 / 255.0, p[2] as f64 / 255.0];
+            let rgb = [
+                p[0] as f64 / 255.0,
+                p[1] as f64 / 255.0,
+                p[2] as f64 / 255.0,
+            ];
             let l = 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
             for c in 0..3 {
                 sum[cell][c] += rgb[c];
@@ -158,7 +188,13 @@ pub fn features(frame: &[u8], spec: &ImageSpec) -> Vec<f64> {
     f
 }
 
-fn set_features(trajs: &[Trajectory], spec: &ImageSpec, filter: &dyn Fn(&str) -> bool, max: usize, seed: u64) -> Vec<Vec<f64>> {
+fn set_features(
+    trajs: &[Trajectory],
+    spec: &ImageSpec,
+    filter: &dyn Fn(&str) -> bool,
+    max: usize,
+    seed: u64,
+) -> Vec<Vec<f64>> {
     let all: Vec<(usize, usize)> = trajs
         .iter()
         .enumerate()
@@ -188,7 +224,9 @@ pub fn fid_rows(pair: &str, a: &UnlabelledSet, b: &UnlabelledSet, split: &Split)
         }
         let fid = metrics::fid(&fa, &fb).unwrap_or(f64::NAN);
         let size = fa.len().min(fb.len()).min(200);
-        let kid = metrics::kid(&fa, &fb, 10, size, 3).map(|k| k.0).unwrap_or(f64::NAN);
+        let kid = metrics::kid(&fa, &fb, 10, size, 3)
+            .map(|k| k.0)
+            .unwrap_or(f64::NAN);
         rows.push(FidRow {
             group: group.into(),
             pair: pair.into(),
@@ -226,7 +264,11 @@ mod tests {
 
     #[test]
     fn features_of_a_flat_image_are_its_colour() {
-        let spec = ImageSpec { width: 8, height: 8, modality: super::super::modality::Modality::RgbMarker };
+        let spec = ImageSpec {
+            width: 8,
+            height: 8,
+            modality: super::super::modality::Modality::RgbMarker,
+        };
         let px: Vec<u8> = [51u8, 102, 204].repeat(64);
         let f = features(&px, &spec);
         assert_eq!(f.len(), 64);

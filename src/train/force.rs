@@ -11,7 +11,9 @@ use burn::store::{BurnpackStore, ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
-use super::data::{ImageSpec, LabelledSet, Rng, Sequence, Trajectory, images_to_tensor, sample_sequences};
+use super::data::{
+    ImageSpec, LabelledSet, Rng, Sequence, Trajectory, images_to_tensor, sample_sequences,
+};
 use super::nn::{Depth, ForceNet, ForceShape, gamma_l1};
 
 pub const MODEL_INFO: &str = "model.json";
@@ -86,7 +88,11 @@ impl ForceRange {
         let mut lo = [0.0; 3];
         let mut hi = [0.0; 3];
         for a in 0..3 {
-            let (mn, mx) = if b[a].0.is_finite() && b[a].1.is_finite() { b[a] } else { (0.0, 0.0) };
+            let (mn, mx) = if b[a].0.is_finite() && b[a].1.is_finite() {
+                b[a]
+            } else {
+                (0.0, 0.0)
+            };
             let span = mx - mn;
             if span <= 1e-6 {
                 lo[a] = mn - 0.5;
@@ -130,12 +136,16 @@ pub struct ForceModel {
 }
 
 pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
+    let imagenet_stem = spec.width.min(spec.height) >= 96;
+    let map = ForceShape::final_map(imagenet_stem, spec.height as usize, spec.width as usize);
+    let cells = map[0] * map[1];
     ForceShape {
         depth: cfg.depth,
         width: cfg.width,
         embed: cfg.embed,
         lstm: cfg.lstm,
-        imagenet_stem: spec.width.min(spec.height) >= 96,
+        imagenet_stem,
+        spatial: (cells <= 64).then_some(map),
     }
 }
 
@@ -201,7 +211,7 @@ pub fn train(
     if cfg.seq_len == 0 || cfg.batch == 0 || cfg.per_trajectory == 0 {
         bail!("seq_len, batch and per_trajectory must be at least 1");
     }
-    if !(cfg.gamma > 0.0 && cfg.gamma.is_finite()) || !(cfg.lr > 0.0 && cfg.lr.is_finite()) {
+    if !(cfg.gamma > 0.0 && cfg.gamma.is_finite() && cfg.lr > 0.0 && cfg.lr.is_finite()) {
         bail!("gamma and lr must be positive and finite");
     }
     let spec = set.spec;
@@ -228,7 +238,9 @@ pub fn train(
         method: method.into(),
         spec,
         shape,
-        range: cfg.range.unwrap_or_else(|| ForceRange::from_bounds(set.force_bounds())),
+        range: cfg
+            .range
+            .unwrap_or_else(|| ForceRange::from_bounds(set.force_bounds())),
         config: cfg.clone(),
         epochs_done: 0,
         trained_on: String::new(),
@@ -243,7 +255,9 @@ pub fn train(
             );
         }
         net.load_from(&mut BurnpackStore::from_file(out.join(RESUME_WEIGHTS)))
-            .map_err(|e| anyhow::anyhow!("cannot load {}: {e:?}", out.join(RESUME_WEIGHTS).display()))?;
+            .map_err(|e| {
+                anyhow::anyhow!("cannot load {}: {e:?}", out.join(RESUME_WEIGHTS).display())
+            })?;
         net = net.fork(&adev);
         if out.join(OPTIM).is_file() {
             optim = optim
@@ -253,7 +267,9 @@ pub fn train(
         info.range = old.range;
         info.epochs_done = old.epochs_done;
         info.last_loss = old.last_loss;
-        eprintln!("resuming {} after epoch {}", out.display(), old.epochs_done);
+        if progress {
+            eprintln!("resuming {} after epoch {}", out.display(), old.epochs_done);
+        }
     }
     let forces = |i: usize| set.forces(i).to_vec();
     let steps_per_epoch = sample_sequences(&lengths, cfg.seq_len, cfg.per_trajectory, &mut Rng(0))
@@ -263,7 +279,10 @@ pub fn train(
     let bar = super::progress_bar(progress, total, "force");
     let t0 = std::time::Instant::now();
     let mut seqs_done = 0usize;
-    let mut log = fs::OpenOptions::new().create(true).append(true).open(out.join(LOG))?;
+    let mut log = fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(out.join(LOG))?;
     for epoch in info.epochs_done..cfg.epochs {
         let mut rng = Rng(cfg.seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9));
         let mut seqs = sample_sequences(&lengths, cfg.seq_len, cfg.per_trajectory, &mut rng);
@@ -271,7 +290,8 @@ pub fn train(
         let mut sum = 0.0;
         for chunk in seqs.chunks(cfg.batch) {
             let refs: Vec<&Sequence> = chunk.iter().collect();
-            let (x, y) = batch_tensors(&set.trajectories, &forces, &refs, &spec, &info.range, &adev);
+            let (x, y) =
+                batch_tensors(&set.trajectories, &forces, &refs, &spec, &info.range, &adev);
             let loss = gamma_l1(net.forward(x), y, cfg.gamma);
             let value = loss.clone().into_scalar::<f32>() as f64;
             if !value.is_finite() {
@@ -311,8 +331,13 @@ pub fn train(
         // before the checkpoint is replaced, so the last good one survives.
         let probe: Vec<&Sequence> = seqs.iter().take(cfg.batch).collect();
         let (x, _) = batch_tensors(&set.trajectories, &forces, &probe, &spec, &info.range, &dev);
-        let check = net.valid().forward(x).into_data().convert::<f32>().try_to_vec::<f32>();
-        if !check.map_or(false, |v| v.iter().all(|x| x.is_finite())) {
+        let check = net
+            .valid()
+            .forward(x)
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>();
+        if !check.is_ok_and(|v| v.iter().all(|x| x.is_finite())) {
             bar.abandon();
             bail!(
                 "the weights are no longer finite after epoch {} (learning rate {} too high?); \
@@ -326,7 +351,12 @@ pub fn train(
         info.last_loss = mean;
         save_checkpoint(out, &net, &optim, &info)?;
         use std::io::Write as _;
-        writeln!(log, "{},{mean:.6},{:.3}", epoch + 1, t0.elapsed().as_secs_f64())?;
+        writeln!(
+            log,
+            "{},{mean:.6},{:.3}",
+            epoch + 1,
+            t0.elapsed().as_secs_f64()
+        )?;
     }
     bar.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
@@ -339,7 +369,12 @@ pub fn train(
     })
 }
 
-fn save_checkpoint(out: &Path, net: &ForceNet, optim: &ModuleOptimizer, info: &ModelInfo) -> anyhow::Result<()> {
+fn save_checkpoint(
+    out: &Path,
+    net: &ForceNet,
+    optim: &ModuleOptimizer,
+    info: &ModelInfo,
+) -> anyhow::Result<()> {
     // Written beside, then renamed: a crash leaves the previous checkpoint whole.
     let tmp_w = out.join(format!("{WEIGHTS}.partial"));
     let _ = fs::remove_file(&tmp_w);
@@ -362,8 +397,10 @@ fn save_checkpoint(out: &Path, net: &ForceNet, optim: &ModuleOptimizer, info: &M
 
 pub fn read_info(dir: &Path) -> anyhow::Result<ModelInfo> {
     let p = dir.join(MODEL_INFO);
-    let text = fs::read(&p).with_context(|| format!("{} is not a model directory", dir.display()))?;
-    serde_json::from_slice(&text).with_context(|| format!("{} is not a model description", p.display()))
+    let text =
+        fs::read(&p).with_context(|| format!("{} is not a model directory", dir.display()))?;
+    serde_json::from_slice(&text)
+        .with_context(|| format!("{} is not a model description", p.display()))
 }
 
 impl ForceModel {
@@ -381,7 +418,12 @@ impl ForceModel {
     }
 
     /// Forces (N) for each frame of each sequence: `[sequence][position]`.
-    pub fn predict(&self, trajs: &[Trajectory], seqs: &[Sequence], batch: usize) -> Vec<Vec<[f32; 3]>> {
+    pub fn predict(
+        &self,
+        trajs: &[Trajectory],
+        seqs: &[Sequence],
+        batch: usize,
+    ) -> Vec<Vec<[f32; 3]>> {
         let spec = self.info.spec;
         let mut out = Vec::with_capacity(seqs.len());
         for chunk in seqs.chunks(batch.max(1)) {
@@ -394,7 +436,11 @@ impl ForceModel {
             let x = images_to_tensor(&frames, &spec, &self.dev);
             let [_, c, h, w] = x.dims();
             let y = self.net.forward(x.reshape([chunk.len(), t, c, h, w]));
-            let v: Vec<f32> = y.into_data().convert::<f32>().try_to_vec::<f32>().expect("f32 output");
+            let v: Vec<f32> = y
+                .into_data()
+                .convert::<f32>()
+                .try_to_vec::<f32>()
+                .expect("f32 output");
             for s in 0..chunk.len() {
                 out.push(
                     (0..t)
@@ -412,5 +458,8 @@ impl ForceModel {
 
 /// The checkpoint files of a model directory (for listings and tests).
 pub fn checkpoint_files(dir: &Path) -> Vec<PathBuf> {
-    [MODEL_INFO, WEIGHTS, RESUME_WEIGHTS, OPTIM].iter().map(|f| dir.join(f)).collect()
+    [MODEL_INFO, WEIGHTS, RESUME_WEIGHTS, OPTIM]
+        .iter()
+        .map(|f| dir.join(f))
+        .collect()
 }

@@ -12,7 +12,11 @@ pub fn mae(pred: &[f64], truth: &[f64]) -> f64 {
     if n == 0 {
         return f64::NAN;
     }
-    pred.iter().zip(truth).map(|(p, t)| (p - t).abs()).sum::<f64>() / n as f64
+    pred.iter()
+        .zip(truth)
+        .map(|(p, t)| (p - t).abs())
+        .sum::<f64>()
+        / n as f64
 }
 
 /// Coefficient of determination, 1 − SS_res / SS_tot, with the mean taken first (two passes),
@@ -29,7 +33,11 @@ pub fn r2(pred: &[f64], truth: &[f64]) -> f64 {
     let mean = truth[..n].iter().sum::<f64>() / n as f64;
     let ss_tot: f64 = truth[..n].iter().map(|t| (t - mean).powi(2)).sum();
     let ss_res: f64 = pred.iter().zip(truth).map(|(p, t)| (t - p).powi(2)).sum();
-    let scale = truth[..n].iter().map(|t| t.abs()).fold(0.0, f64::max).max(1e-300);
+    let scale = truth[..n]
+        .iter()
+        .map(|t| t.abs())
+        .fold(0.0, f64::max)
+        .max(1e-300);
     // "Zero" relative to the data's magnitude: n · (1e-12 · scale)².
     let tiny = n as f64 * (1e-12 * scale).powi(2);
     if ss_tot <= tiny {
@@ -129,7 +137,11 @@ pub fn kid(
 ) -> Result<(f64, f64), String> {
     let m = subset_size.min(a.len()).min(b.len());
     if m < 2 {
-        return Err(format!("KID needs subsets of at least 2 (sets of {} and {})", a.len(), b.len()));
+        return Err(format!(
+            "KID needs subsets of at least 2 (sets of {} and {})",
+            a.len(),
+            b.len()
+        ));
     }
     let d = a[0].len();
     if d == 0 || a.iter().chain(b).any(|f| f.len() != d) {
@@ -138,7 +150,9 @@ pub fn kid(
     if a.iter().chain(b).flatten().any(|v| !v.is_finite()) {
         return Err("a feature is not finite".into());
     }
-    let k = |x: &[f64], y: &[f64]| (x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>() / d as f64 + 1.0).powi(3);
+    let k = |x: &[f64], y: &[f64]| {
+        (x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>() / d as f64 + 1.0).powi(3)
+    };
     let mut rng = super::data::Rng(seed);
     let mut pick = |n: usize| {
         let mut idx: Vec<usize> = (0..n).collect();
@@ -200,7 +214,10 @@ mod tests {
     #[test]
     fn total_mae_is_the_error_of_the_magnitude() {
         // |(3, 4, 0)| = 5 against |(0, 0, -2)| = 2 → 3; |(1, 0, 0)| = 1 against itself → 0.
-        let s = score(&[[3.0, 4.0, 0.0], [1.0, 0.0, 0.0]], &[[0.0, 0.0, -2.0], [1.0, 0.0, 0.0]]);
+        let s = score(
+            &[[3.0, 4.0, 0.0], [1.0, 0.0, 0.0]],
+            &[[0.0, 0.0, -2.0], [1.0, 0.0, 0.0]],
+        );
         assert!((s.total_mae - 1.5).abs() < 1e-15);
         assert_eq!(s.mae, [1.5, 2.0, 1.0]);
         assert_eq!(s.n, 2);
@@ -220,7 +237,12 @@ mod tests {
         assert!(fid(&a, &a).unwrap() < 1e-9);
         assert!((fid(&a, &b).unwrap() - fid(&b, &a).unwrap()).abs() < 1e-9);
         // Diagonal 2-D: independent axes add.
-        let a2: Vec<Vec<f64>> = vec![vec![-1.0, 0.0], vec![1.0, 0.0], vec![0.0, -2.0], vec![0.0, 2.0]];
+        let a2: Vec<Vec<f64>> = vec![
+            vec![-1.0, 0.0],
+            vec![1.0, 0.0],
+            vec![0.0, -2.0],
+            vec![0.0, 2.0],
+        ];
         let b2: Vec<Vec<f64>> = a2.iter().map(|v| vec![v[0] * 3.0 + 1.0, v[1]]).collect();
         // var x: 2/3 → 6; var y: 8/3 both; means (0,0) vs (1,0).
         let want = 1.0 + ((2.0f64 / 3.0).sqrt() - 6.0f64.sqrt()).powi(2);
@@ -230,10 +252,20 @@ mod tests {
     #[test]
     fn fid_is_stable_for_singular_covariances() {
         // 8-D features on a 2-D subspace, 5 samples (fewer than dimensions): rank-deficient.
-        let basis = |s: f64, t: f64| -> Vec<f64> { (0..8).map(|k| s * (k as f64 + 1.0) / 8.0 + t * if k % 2 == 0 { 1.0 } else { -1.0 }).collect() };
-        let a: Vec<Vec<f64>> = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5)].iter().map(|&(s, t)| basis(s, t)).collect();
+        let basis = |s: f64, t: f64| -> Vec<f64> {
+            (0..8)
+                .map(|k| s * (k as f64 + 1.0) / 8.0 + t * if k % 2 == 0 { 1.0 } else { -1.0 })
+                .collect()
+        };
+        let a: Vec<Vec<f64>> = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5)]
+            .iter()
+            .map(|&(s, t)| basis(s, t))
+            .collect();
         let shift: Vec<f64> = (0..8).map(|k| k as f64 * 0.1).collect();
-        let b: Vec<Vec<f64>> = a.iter().map(|v| v.iter().zip(&shift).map(|(x, s)| x + s).collect()).collect();
+        let b: Vec<Vec<f64>> = a
+            .iter()
+            .map(|v| v.iter().zip(&shift).map(|(x, s)| x + s).collect())
+            .collect();
         let f = fid(&a, &b).unwrap();
         // A pure shift: equal covariances cancel, leaving |Δμ|² = Σ (0.1 k)².
         let want: f64 = shift.iter().map(|s| s * s).sum();
@@ -267,7 +299,10 @@ mod tests {
         let one = kid(&a, &d, 10, 100, 1).unwrap().0;
         assert!(same.abs() < 0.1 * half, "{same} vs {half}");
         assert!(half > 0.0 && one > half);
-        assert_eq!(kid(&a, &c, 10, 100, 1).unwrap(), kid(&a, &c, 10, 100, 1).unwrap());
+        assert_eq!(
+            kid(&a, &c, 10, 100, 1).unwrap(),
+            kid(&a, &c, 10, 100, 1).unwrap()
+        );
         assert!(kid(&a[..1], &b, 10, 100, 1).is_err());
     }
 }

@@ -81,8 +81,10 @@ impl TrainerConfig {
         match path {
             None => Ok(Self::default()),
             Some(p) => {
-                let text = std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
-                toml::from_str(&text).with_context(|| format!("{} is not a trainer config", p.display()))
+                let text = std::fs::read_to_string(p)
+                    .with_context(|| format!("cannot read {}", p.display()))?;
+                toml::from_str(&text)
+                    .with_context(|| format!("{} is not a trainer config", p.display()))
             }
         }
     }
@@ -124,11 +126,15 @@ pub struct Common {
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s.split_once(['x', 'X']).ok_or("expected WIDTHxHEIGHT, e.g. 64x48")?;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or("expected WIDTHxHEIGHT, e.g. 64x48")?;
     let w: u32 = w.trim().parse().map_err(|_| format!("bad width {w:?}"))?;
     let h: u32 = h.trim().parse().map_err(|_| format!("bad height {h:?}"))?;
-    if w < 8 || h < 8 || w % 4 != 0 || h % 4 != 0 {
-        return Err(format!("{w}x{h}: width and height must be multiples of 4, at least 8"));
+    if w < 8 || h < 8 || !w.is_multiple_of(4) || !h.is_multiple_of(4) {
+        return Err(format!(
+            "{w}x{h}: width and height must be multiples of 4, at least 8"
+        ));
     }
     Ok((w, h))
 }
@@ -219,12 +225,26 @@ pub fn train_command(args: &TrainArgs) -> anyhow::Result<()> {
                 cfg.translate.steps_per_epoch = a.steps_per_epoch;
             }
             let spec = cfg.spec(Modality::RgbMarker);
-            let source = data::load_labelled(&a.source, &spec, progress)?.seen_only(&cfg.data.split);
+            let source =
+                data::load_labelled(&a.source, &spec, progress)?.seen_only(&cfg.data.split);
             let target = data::load_unlabelled(&a.target, &spec, progress)?;
             let t = cyclegan::translate(&source, &target, &cfg.translate, &a.out, progress)?;
-            let mut table = report::Table { rows: Vec::new(), fid: Vec::new() };
-            table.fid.extend(eval::fid_rows("I_s–I_t", &source.images(), &target, &cfg.data.split));
-            table.fid.extend(eval::fid_rows("Î_t–I_t", &t.set.images(), &target, &cfg.data.split));
+            let mut table = report::Table {
+                rows: Vec::new(),
+                fid: Vec::new(),
+            };
+            table.fid.extend(eval::fid_rows(
+                "I_s–I_t",
+                &source.images(),
+                &target,
+                &cfg.data.split,
+            ));
+            table.fid.extend(eval::fid_rows(
+                "Î_t–I_t",
+                &t.set.images(),
+                &target,
+                &cfg.data.split,
+            ));
             table.write(&a.out)?;
             println!(
                 "translated {} source trajectories into {} (cycle loss {:.3} after {} iterations); samples in {}",
@@ -252,7 +272,11 @@ pub fn train_command(args: &TrainArgs) -> anyhow::Result<()> {
                     Ok("translated") => "TransForce",
                     _ => "source-only",
                 };
-                if a.no_lstm { format!("{base} (no LSTM)") } else { base.to_string() }
+                if a.no_lstm {
+                    format!("{base} (no LSTM)")
+                } else {
+                    base.to_string()
+                }
             });
             let r = force::train(&set, &cfg.force, &method, &a.out, a.resume, progress)?;
             println!(
@@ -271,10 +295,22 @@ pub fn train_command(args: &TrainArgs) -> anyhow::Result<()> {
 pub fn eval_command(args: &EvalArgs) -> anyhow::Result<()> {
     let progress = std::io::stderr().is_terminal();
     let cfg = TrainerConfig::load(args.config.as_deref())?;
-    let out = args.out.clone().unwrap_or_else(|| args.model[0].join("eval"));
-    let mut table = report::Table { rows: Vec::new(), fid: Vec::new() };
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| args.model[0].join("eval"));
+    let mut table = report::Table {
+        rows: Vec::new(),
+        fid: Vec::new(),
+    };
     for m in &args.model {
-        table.rows.extend(eval::evaluate(m, &args.data, &out, &cfg.data.split, progress)?);
+        table.rows.extend(eval::evaluate(
+            m,
+            &args.data,
+            &out,
+            &cfg.data.split,
+            progress,
+        )?);
     }
     table.write(&out)?;
     print!("{}", table.markdown());

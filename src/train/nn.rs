@@ -75,7 +75,10 @@ impl ResBlock {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let y = relu(self.norm1.forward(self.conv1.forward(reflect_pad(x.clone(), 1))));
+        let y = relu(
+            self.norm1
+                .forward(self.conv1.forward(reflect_pad(x.clone(), 1))),
+        );
         let y = self.norm2.forward(self.conv2.forward(reflect_pad(y, 1)));
         x + y
     }
@@ -130,7 +133,9 @@ impl Generator {
             stem: conv(3, k, 7, 1, 0, dev),
             stem_norm: inorm(k, dev),
             down,
-            blocks: (0..shape.res_blocks).map(|_| ResBlock::new(4 * k, dev)).collect(),
+            blocks: (0..shape.res_blocks)
+                .map(|_| ResBlock::new(4 * k, dev))
+                .collect(),
             up,
             head: conv(k, 3, 7, 1, 0, dev),
         }
@@ -271,6 +276,29 @@ pub struct ForceShape {
     /// ImageNet stem (7×7 stride 2 + max pool) when the images are large enough; a 3×3 stride-1
     /// stem for small images, which would otherwise shrink to nothing.
     pub imagenet_stem: bool,
+    /// The encoder's head: `None` is ResNet's global average pool; `Some([h, w])` flattens the
+    /// last `h × w` feature map instead. Global pooling discards where things are, and on small
+    /// images where the contact sits (how far the indenter has slid) is the visible cue for
+    /// shear; so small inputs keep the map.
+    #[serde(default)]
+    pub spatial: Option<[usize; 2]>,
+}
+
+impl ForceShape {
+    /// The last feature map's size for an input of `h × w`.
+    pub fn final_map(imagenet_stem: bool, h: usize, w: usize) -> [usize; 2] {
+        let half = |v: usize| v.div_ceil(2);
+        let (mut h, mut w) = if imagenet_stem {
+            (half(half(h)), half(half(w)))
+        } else {
+            (h, w)
+        };
+        for _ in 0..3 {
+            h = half(h);
+            w = half(w);
+        }
+        [h, w]
+    }
 }
 
 #[derive(Module, Debug)]
@@ -372,13 +400,14 @@ impl Encoder {
                 c_in = planes * expansion;
             }
         }
+        let cells = shape.spatial.map_or(1, |[h, w]| h * w);
         Self {
             stem,
             stem_bn: bn(w, dev),
             pool,
             units,
-            gap: AdaptiveAvgPool2dConfig::new([1, 1]).init(),
-            embed: LinearConfig::new(c_in, shape.embed).init(dev),
+            gap: AdaptiveAvgPool2dConfig::new(shape.spatial.unwrap_or([1, 1])).init(),
+            embed: LinearConfig::new(c_in * cells, shape.embed).init(dev),
         }
     }
 
@@ -391,8 +420,9 @@ impl Encoder {
         for u in &self.units {
             x = u.forward(x);
         }
-        let [n, c, _, _] = x.dims();
-        self.embed.forward(self.gap.forward(x).reshape([n, c]))
+        let pooled = self.gap.forward(x);
+        let [n, c, h, w] = pooled.dims();
+        self.embed.forward(pooled.reshape([n, c * h * w]))
     }
 }
 
@@ -475,7 +505,10 @@ mod tests {
 
     #[test]
     fn reflection_padding_mirrors_without_repeating_the_edge() {
-        let x = Tensor::<4>::from_data(TensorData::new(vec![1f32, 2., 3., 4., 5., 6.], [1, 1, 2, 3]), &dev());
+        let x = Tensor::<4>::from_data(
+            TensorData::new(vec![1f32, 2., 3., 4., 5., 6.], [1, 1, 2, 3]),
+            &dev(),
+        );
         let y = reflect_pad(x, 1);
         assert_eq!(y.dims(), [1, 1, 4, 5]);
         // Row −1 mirrors row 1, row 2 mirrors row 0; column −1 mirrors column 1, column 3
@@ -500,20 +533,31 @@ mod tests {
         );
         let y = values(norm.forward(x));
         // (x − 2.5) / sqrt(1.25 + 1e-5)
-        close(&y[..4], &[-1.341_635_4, -0.447_211_8, 0.447_211_8, 1.341_635_4], 1e-5);
+        close(
+            &y[..4],
+            &[-1.341_635_4, -0.447_211_8, 0.447_211_8, 1.341_635_4],
+            1e-5,
+        );
         // A constant channel normalises to 0 (variance 0, kept finite by ε).
         close(&y[4..], &[0.0; 4], 1e-6);
     }
 
     fn set_linear(l: &mut Linear, w: f32, b: f32) {
         l.weight = Param::from_tensor(Tensor::from_data(TensorData::new(vec![w], [1, 1]), &dev()));
-        l.bias = Some(Param::from_tensor(Tensor::from_data(TensorData::new(vec![b], [1]), &dev())));
+        l.bias = Some(Param::from_tensor(Tensor::from_data(
+            TensorData::new(vec![b], [1]),
+            &dev(),
+        )));
     }
 
     #[test]
     fn lstm_matches_the_hand_computed_recurrence() {
         let mut lstm = LstmConfig::new(1, 1, true).init(&dev());
-        let mut gates = vec![&mut lstm.input_gate, &mut lstm.output_gate, &mut lstm.cell_gate];
+        let mut gates = vec![
+            &mut lstm.input_gate,
+            &mut lstm.output_gate,
+            &mut lstm.cell_gate,
+        ];
         gates.push(lstm.forget_gate.as_mut().expect("uncoupled forget gate"));
         for g in gates {
             set_linear(&mut g.input_transform, 0.5, 0.1);
@@ -526,7 +570,7 @@ mod tests {
         //   step 2: c = -0.109789495, h = -0.030412038
         let x = Tensor::<3>::from_data(TensorData::new(vec![1f32, -2.0], [1, 2, 1]), &dev());
         let (out, state) = lstm.forward(x, None);
-        close(&values(out), &[0.215_319_69, -0.030_412_04], 1e-6);
+        close(&values(out), &[0.215_319_7, -0.030_412_04], 1e-6);
         close(&values(state.cell), &[-0.109_789_5], 1e-6);
     }
 
@@ -546,14 +590,30 @@ mod tests {
     #[test]
     fn networks_keep_their_shapes() {
         let d = dev();
-        let gan = GanShape { ngf: 4, ndf: 4, res_blocks: 1, disc_layers: 2 };
+        let gan = GanShape {
+            ngf: 4,
+            ndf: 4,
+            res_blocks: 1,
+            disc_layers: 2,
+        };
         let x = Tensor::<4>::zeros([2, 3, 24, 32], &d);
-        assert_eq!(Generator::new(&gan, &d).forward(x.clone()).dims(), [2, 3, 24, 32]);
+        assert_eq!(
+            Generator::new(&gan, &d).forward(x.clone()).dims(),
+            [2, 3, 24, 32]
+        );
         let score = Discriminator::new(&gan, &d).forward(x).dims();
         assert_eq!(score[..2], [2, 1]);
         for depth in Depth::ALL {
             for lstm in [true, false] {
-                let shape = ForceShape { depth, width: 4, embed: 8, lstm, imagenet_stem: false };
+                let shape = ForceShape {
+                    depth,
+                    width: 4,
+                    embed: 8,
+                    lstm,
+                    imagenet_stem: false,
+                    // Both heads: the flattened map and the global pool.
+                    spatial: lstm.then(|| ForceShape::final_map(false, 24, 32)),
+                };
                 let y = ForceNet::new(&shape, &d).forward(Tensor::zeros([2, 3, 3, 24, 32], &d));
                 assert_eq!(y.dims(), [2, 3, 3]);
                 assert!(values(y).iter().all(|v| (0.0..=1.0).contains(v)));

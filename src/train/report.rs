@@ -35,7 +35,11 @@ pub struct Table {
 }
 
 fn num(v: f64) -> String {
-    if v.is_finite() { format!("{v:.3}") } else { "—".into() }
+    if v.is_finite() {
+        format!("{v:.3}")
+    } else {
+        "—".into()
+    }
 }
 
 fn csv_field(s: &str) -> String {
@@ -51,7 +55,9 @@ impl Table {
         let mut s = String::new();
         if !self.rows.is_empty() {
             s.push_str("| Method | Modality | Group | MAE Fx | MAE Fy | MAE Fz | MAE |F| | R² Fx | R² Fy | R² Fz | n |\n");
-            s.push_str("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n");
+            s.push_str(
+                "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+            );
             for r in &self.rows {
                 s.push_str(&format!(
                     "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
@@ -75,14 +81,22 @@ impl Table {
             }
             s.push_str("| Images | Group | FID | KID |\n| --- | --- | ---: | ---: |\n");
             for f in &self.fid {
-                s.push_str(&format!("| {} | {} | {} | {} |\n", f.pair, f.group, num(f.fid), num(f.kid)));
+                s.push_str(&format!(
+                    "| {} | {} | {} | {} |\n",
+                    f.pair,
+                    f.group,
+                    num(f.fid),
+                    num(f.kid)
+                ));
             }
         }
         s
     }
 
     pub fn csv(&self) -> String {
-        let mut s = String::from("method,modality,group,mae_fx,mae_fy,mae_fz,mae_total,r2_fx,r2_fy,r2_fz,n\n");
+        let mut s = String::from(
+            "method,modality,group,mae_fx,mae_fy,mae_fz,mae_total,r2_fx,r2_fy,r2_fz,n\n",
+        );
         for r in &self.rows {
             s.push_str(&format!(
                 "{},{},{},{},{},{},{},{},{},{},{}\n",
@@ -115,7 +129,12 @@ impl Table {
 
 /// Predicted against true force, one panel per axis, with the y = x line; non-finite points are
 /// skipped, and empty or constant data still give a plot.
-pub fn plot_pred_vs_true(path: &Path, title: &str, pred: &[[f64; 3]], truth: &[[f64; 3]]) -> anyhow::Result<()> {
+pub fn plot_pred_vs_true(
+    path: &Path,
+    title: &str,
+    pred: &[[f64; 3]],
+    truth: &[[f64; 3]],
+) -> anyhow::Result<()> {
     let root = SVGBackend::new(path, (1200, 440)).into_drawing_area();
     root.fill(&WHITE)?;
     let root = root.titled(title, ("sans-serif", 18))?;
@@ -129,7 +148,9 @@ pub fn plot_pred_vs_true(path: &Path, title: &str, pred: &[[f64; 3]], truth: &[[
             .collect();
         let (mut lo, mut hi) = pts
             .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), (x, y)| (l.min(*x).min(*y), h.max(*x).max(*y)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), (x, y)| {
+                (l.min(*x).min(*y), h.max(*x).max(*y))
+            });
         if !(lo.is_finite() && hi.is_finite()) {
             (lo, hi) = (-1.0, 1.0);
         }
@@ -156,7 +177,10 @@ pub fn plot_pred_vs_true(path: &Path, title: &str, pred: &[[f64; 3]], truth: &[[
             .y_desc("predicted force (N)")
             .draw()?;
         chart.draw_series(LineSeries::new([(lo, lo), (hi, hi)], BLACK.mix(0.5)))?;
-        chart.draw_series(pts.iter().map(|p| Circle::new(*p, 2, BLUE.mix(0.4).filled())))?;
+        chart.draw_series(
+            pts.iter()
+                .map(|p| Circle::new(*p, 2, BLUE.mix(0.4).filled())),
+        )?;
     }
     root.present()?;
     Ok(())
@@ -188,7 +212,12 @@ mod tests {
                     n: 4,
                 },
             ],
-            fid: vec![FidRow { group: "seen".into(), pair: "I_s–I_t".into(), fid: 12.5, kid: 0.01 }],
+            fid: vec![FidRow {
+                group: "seen".into(),
+                pair: "I_s–I_t".into(),
+                fid: 12.5,
+                kid: 0.01,
+            }],
         }
     }
 
@@ -199,8 +228,14 @@ mod tests {
         assert!(md.contains("| I_s–I_t | seen | 12.500 | 0.010 |"), "{md}");
         let csv = table().csv();
         let lines: Vec<&str> = csv.lines().collect();
-        assert_eq!(lines[0], "method,modality,group,mae_fx,mae_fy,mae_fz,mae_total,r2_fx,r2_fy,r2_fz,n");
-        assert_eq!(lines[1], "TransForce,R+M,seen,0.1,0.2,0.3,0.25,0.9,0.8,NaN,10");
+        assert_eq!(
+            lines[0],
+            "method,modality,group,mae_fx,mae_fy,mae_fz,mae_total,r2_fx,r2_fy,r2_fz,n"
+        );
+        assert_eq!(
+            lines[1],
+            "TransForce,R+M,seen,0.1,0.2,0.3,0.25,0.9,0.8,NaN,10"
+        );
         assert_eq!(lines[2], "\"a, \"\"b\"\"\",M,unseen,1,2,3,2.5,-0.5,0,1,4");
     }
 
@@ -212,7 +247,9 @@ mod tests {
         for f in ["results.md", "results.csv", "results.json"] {
             assert!(dir.path().join(f).is_file());
         }
-        let back: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.path().join("results.json")).unwrap()).unwrap();
+        let back: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join("results.json")).unwrap())
+                .unwrap();
         assert_eq!(back["rows"][1]["method"], "a, \"b\"");
         assert_eq!(back["rows"].as_array().unwrap().len(), 2);
     }
@@ -220,8 +257,12 @@ mod tests {
     #[test]
     fn plots_survive_empty_constant_and_nan_data() {
         let dir = tempfile::tempdir().unwrap();
-        let cases: Vec<(Vec<[f64; 3]>, Vec<[f64; 3]>)> = vec![
-            (vec![[0.1, 0.2, -1.0], [0.0, 0.3, -2.0]], vec![[0.0, 0.2, -1.1], [0.1, 0.2, -2.2]]),
+        type Case = (Vec<[f64; 3]>, Vec<[f64; 3]>);
+        let cases: Vec<Case> = vec![
+            (
+                vec![[0.1, 0.2, -1.0], [0.0, 0.3, -2.0]],
+                vec![[0.0, 0.2, -1.1], [0.1, 0.2, -2.2]],
+            ),
             (vec![], vec![]),
             (vec![[1.0; 3]; 4], vec![[1.0; 3]; 4]),
             (vec![[f64::NAN, 1.0, f64::INFINITY]], vec![[0.0, 1.0, 2.0]]),
