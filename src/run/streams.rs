@@ -1,7 +1,8 @@
 //! The F/T and camera streams of a run, each read on its own task for the whole run.
 //!
 //! - The **F/T task** reads every [`WrenchSample`] of the [`FtStream`], checks it against the
-//!   force limit (from the first tare on: before it the reading is mostly the sensor's bias)
+//!   force limit (tared samples only, unless the config asks for no tare: an untared reading
+//!   is mostly the sensor's bias)
 //!   and forwards it to the sync task. A force above `safety.max_force_n`, a
 //!   saturated sensor, the stream ending (a closed port, a dead link) or no sample within the
 //!   stall timeout raises a [`Trip`], which the motion watches.
@@ -120,9 +121,12 @@ pub struct StreamCounters {
     pub backpressure_waits: AtomicU64,
     /// Capture stamp of the newest frame handed to the sync task, ns (0: none yet).
     pub newest_frame_stamp_ns: AtomicU64,
-    /// The force limit applies from the first tare on: before it, the reading holds the
-    /// sensor's bias (on a Nano17, up to a few N), not a contact force.
-    force_limit_armed: AtomicBool,
+    /// The force limit applies to every tared sample; to an untared one (its reading holds
+    /// the sensor's bias, on a Nano17 up to a few N, not a contact force) only when this is
+    /// set, because the config asks for no tare. The flag travels with the sample: samples
+    /// still queued from before the first tare cannot trip the limit however late the
+    /// stream task reads them.
+    force_limit_untared: AtomicBool,
     backpressure_warned: AtomicBool,
 }
 
@@ -285,20 +289,16 @@ impl Streams {
         &self.counters
     }
 
-    /// Applies the force limit from now on (without a tare: the config asks for none).
+    /// Applies the force limit to untared samples too (the config asks for no tare).
     pub fn arm_force_limit(&self) {
         self.counters
-            .force_limit_armed
+            .force_limit_untared
             .store(true, Ordering::Release);
     }
 
     /// Tare the F/T over the next `samples` samples (the indenter must be off the gel).
     pub async fn tare(&self, samples: u64) -> Result<TareReport, crate::force::FtError> {
-        let r = self.tare.tare(samples).await?;
-        self.counters
-            .force_limit_armed
-            .store(true, Ordering::Release);
-        Ok(r)
+        self.tare.tare(samples).await
     }
 
     /// Stops every task and the encoder.
@@ -356,7 +356,8 @@ async fn ft_task(
         counters.wrench.fetch_add(1, Ordering::Relaxed);
         let f = s.wrench.force_n;
         let norm = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
-        let armed = counters.force_limit_armed.load(Ordering::Acquire);
+        let armed = !s.flags.contains(SampleFlags::UNTARED)
+            || counters.force_limit_untared.load(Ordering::Acquire);
         if armed && norm > settings.max_force_n {
             trip(
                 &trip_tx,
@@ -484,5 +485,75 @@ fn encoder_thread(
         counters
             .newest_frame_stamp_ns
             .fetch_max(stamp_ns, Ordering::Relaxed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(seq: u64, fz: f64, flags: SampleFlags) -> WrenchSample {
+        WrenchSample {
+            t_host_ns: seq * 1_000_000,
+            device_seq: seq,
+            wrench: Wrench {
+                force_n: [0.0, 0.0, fz],
+                torque_nmm: [0.0; 3],
+            },
+            status: 0,
+            flags,
+        }
+    }
+
+    /// Feeds `samples` through the F/T task (arming the untared limit first if asked) and
+    /// returns the trip they raised, once all were forwarded.
+    async fn run(samples: &[WrenchSample], untared_limit: bool) -> Option<Trip> {
+        let (ft, sink, _ctl, _done) = FtStream::channel("test".into());
+        let (out_tx, mut out_rx) = mpsc::channel(64);
+        let streams = Streams::start(
+            ft,
+            None,
+            None,
+            Clock::system(),
+            StreamSettings {
+                max_force_n: 1.0,
+                ft_stall: Duration::from_secs(60),
+                camera_stall: Duration::from_secs(60),
+            },
+            out_tx,
+        );
+        if untared_limit {
+            streams.arm_force_limit();
+        }
+        for s in samples {
+            sink.deliver(*s);
+        }
+        for _ in samples {
+            out_rx.recv().await.unwrap();
+        }
+        let t = streams.current_trip();
+        streams.shutdown().await;
+        t
+    }
+
+    #[tokio::test]
+    async fn untared_samples_queued_before_the_tare_do_not_trip_the_force_limit() {
+        // The sensor's bias (3 N) in samples read before the tare took effect, however late
+        // the task gets to them; then tared contact forces under and over the 1 N limit.
+        let untared = sample(1, -3.0, SampleFlags::UNTARED);
+        let under = sample(2, -0.9, SampleFlags::NONE);
+        let over = sample(3, -1.5, SampleFlags::NONE);
+        assert_eq!(run(&[untared, under], false).await, None);
+        match run(&[untared, under, over], false).await {
+            Some(Trip::ForceLimit { force_n, limit_n }) => {
+                assert!((force_n - 1.5).abs() < 1e-12 && limit_n == 1.0);
+            }
+            t => panic!("expected the tared 1.5 N sample to trip, got {t:?}"),
+        }
+        // No tare configured: the readings are taken as they are, limit included.
+        match run(&[untared], true).await {
+            Some(Trip::ForceLimit { force_n, .. }) => assert!((force_n - 3.0).abs() < 1e-12),
+            t => panic!("expected the untared 3 N sample to trip, got {t:?}"),
+        }
     }
 }

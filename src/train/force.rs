@@ -47,6 +47,10 @@ pub struct ForceConfig {
     pub epochs: usize,
     pub batch: usize,
     pub lr: f64,
+    /// With a value: the learning rate decays from `lr` to this over the epochs on a cosine
+    /// (epoch e of E trains at `lr_final + (lr − lr_final) · ½ (1 + cos(π e / E))`), so the
+    /// last epochs settle instead of jumping about at the full rate. None: constant `lr`.
+    pub lr_final: Option<f64>,
     pub optimizer: Optimizer,
     pub seed: u64,
     /// Force range of the sigmoid output, N per axis; from the training labels (with a 5 %
@@ -67,9 +71,25 @@ impl Default for ForceConfig {
             epochs: 20,
             batch: 8,
             lr: 1e-3,
+            lr_final: None,
             optimizer: Optimizer::Adam,
             seed: 1,
             range: None,
+        }
+    }
+}
+
+impl ForceConfig {
+    /// The learning rate of epoch `epoch` (0-based): `lr`, or the cosine decay to `lr_final`.
+    /// A function of the epoch and `epochs` alone, so a run resumed with the same config
+    /// continues the same schedule (resumed with more epochs, the rest of it stretches).
+    pub fn lr_at(&self, epoch: usize) -> f64 {
+        match self.lr_final {
+            None => self.lr,
+            Some(end) => {
+                let x = epoch as f64 / self.epochs.max(1) as f64;
+                end + (self.lr - end) * 0.5 * (1.0 + (std::f64::consts::PI * x).cos())
+            }
         }
     }
 }
@@ -214,6 +234,12 @@ pub fn train(
     if !(cfg.gamma > 0.0 && cfg.gamma.is_finite() && cfg.lr > 0.0 && cfg.lr.is_finite()) {
         bail!("gamma and lr must be positive and finite");
     }
+    if cfg
+        .lr_final
+        .is_some_and(|l| !(l > 0.0 && l.is_finite() && l <= cfg.lr))
+    {
+        bail!("lr_final must be positive, finite and at most lr");
+    }
     let spec = set.spec;
     let lengths: Vec<usize> = set.trajectories.iter().map(|t| t.frames).collect();
     if sample_sequences(&lengths, cfg.seq_len, 1, &mut Rng(0)).is_empty() {
@@ -287,6 +313,7 @@ pub fn train(
         let mut rng = Rng(cfg.seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9));
         let mut seqs = sample_sequences(&lengths, cfg.seq_len, cfg.per_trajectory, &mut rng);
         rng.shuffle(&mut seqs);
+        let lr = cfg.lr_at(epoch);
         let mut sum = 0.0;
         for chunk in seqs.chunks(cfg.batch) {
             let refs: Vec<&Sequence> = chunk.iter().collect();
@@ -300,7 +327,7 @@ pub fn train(
                     "the loss became {value} in epoch {} (learning rate {} too high, or bad \
                      data); training stopped. {}",
                     epoch + 1,
-                    cfg.lr,
+                    lr,
                     if info.epochs_done > 0 {
                         format!(
                             "The last good checkpoint (epoch {}) is kept in {}",
@@ -313,7 +340,7 @@ pub fn train(
                 );
             }
             let grads = GradientsParams::from_grads(loss.backward(), &net);
-            net = optim.step(cfg.lr, net, grads);
+            net = optim.step(lr, net, grads);
             sum += value * chunk.len() as f64;
             seqs_done += chunk.len();
             let secs = t0.elapsed().as_secs_f64().max(1e-9);
@@ -343,7 +370,7 @@ pub fn train(
                 "the weights are no longer finite after epoch {} (learning rate {} too high?); \
                  training stopped, the checkpoint of epoch {} is kept",
                 epoch + 1,
-                cfg.lr,
+                lr,
                 info.epochs_done
             );
         }
@@ -462,4 +489,35 @@ pub fn checkpoint_files(dir: &Path) -> Vec<PathBuf> {
         .iter()
         .map(|f| dir.join(f))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cosine_schedule_runs_from_lr_to_lr_final() {
+        let cfg = ForceConfig {
+            lr: 1e-2,
+            lr_final: Some(1e-3),
+            epochs: 4,
+            ..ForceConfig::default()
+        };
+        let lrs: Vec<f64> = (0..4).map(|e| cfg.lr_at(e)).collect();
+        // ½ (1 + cos(π e / 4)) = 1, 0.853553, 0.5, 0.146447.
+        let want = [
+            1e-2,
+            1e-3 + 9e-3 * 0.853_553_4,
+            5.5e-3,
+            1e-3 + 9e-3 * 0.146_446_6,
+        ];
+        for (a, b) in lrs.iter().zip(want) {
+            assert!((a - b).abs() < 1e-9, "{lrs:?}");
+        }
+        let flat = ForceConfig {
+            lr_final: None,
+            ..cfg
+        };
+        assert!((0..4).all(|e| flat.lr_at(e) == 1e-2));
+    }
 }
