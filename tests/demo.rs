@@ -1,9 +1,10 @@
 //! `rig demo --quick` end to end on the simulated rig: collect source and target datasets,
 //! translate, train TransForce, its no-LSTM control and the source-only baseline, evaluate on the
 //! target sensor. The table must be written, translation must bring the source images closer to
-//! the target's, and TransForce must beat source-only on the normal force and the force
-//! magnitude. (Shear forces in the simulator are small, ≤ 0.4 N against up to 16 N normal, and
-//! the quick models do not resolve them reliably, so Fx/Fy are reported, not asserted.)
+//! the target's, and TransForce must beat source-only on the target on every axis (MAE over all
+//! frames) and on the force magnitude. The demo slides 3 mm at depth, so the shear forces (up to
+//! about 1 N, with slip and reversal) are a signal the quick models can learn; source-only,
+//! trained on the source sensor's images, does not transfer them to the target's.
 
 use std::process::Command;
 
@@ -47,14 +48,16 @@ fn the_quick_demo_runs_the_whole_story_and_transforce_beats_source_only() {
             .unwrap_or_else(|| panic!("no {method} row for all frames:\n{md}"))
     };
     let (tf, so) = (row("TransForce"), row("source-only"));
-    let (t, s) = (
-        tf["mae"][2].as_f64().unwrap(),
-        so["mae"][2].as_f64().unwrap(),
-    );
-    assert!(
-        t < s,
-        "Fz: TransForce MAE {t:.3} N is not below source-only {s:.3} N\n{md}"
-    );
+    for (a, axis) in ["Fx", "Fy", "Fz"].iter().enumerate() {
+        let (t, s) = (
+            tf["mae"][a].as_f64().unwrap(),
+            so["mae"][a].as_f64().unwrap(),
+        );
+        assert!(
+            t < s,
+            "{axis}: TransForce MAE {t:.3} N is not below source-only {s:.3} N\n{md}"
+        );
+    }
     let (t, s) = (
         tf["total_mae"].as_f64().unwrap(),
         so["total_mae"].as_f64().unwrap(),

@@ -42,6 +42,9 @@ pub struct DemoPlan {
     pub seen: Vec<&'static str>,
     pub unseen: Vec<&'static str>,
     pub directions_deg: Vec<f64>,
+    /// How far each trajectory slides at depth, mm (the rig configs' 1 mm gives shear forces
+    /// of a few tenths of a newton in the simulator, too small a signal for the small models).
+    pub shear_distance_mm: f64,
     pub camera: (u32, u32),
     pub fps: f64,
     pub spec: (u32, u32),
@@ -57,6 +60,7 @@ impl DemoPlan {
                 seen: vec!["sphere", "hemisphere", "prism"],
                 unseen: vec!["cone"],
                 directions_deg: vec![0.0, 90.0, 180.0, 270.0],
+                shear_distance_mm: 3.0,
                 camera: (160, 120),
                 fps: 10.0,
                 spec: (32, 24),
@@ -90,6 +94,7 @@ impl DemoPlan {
                 seen: vec!["sphere", "hemisphere", "prism", "dots", "line", "random"],
                 unseen: vec!["cone", "sphere_s"],
                 directions_deg: (0..12).map(|k| k as f64 * 30.0).collect(),
+                shear_distance_mm: 3.0,
                 camera: (320, 240),
                 fps: 25.0,
                 spec: (64, 48),
@@ -110,11 +115,12 @@ impl DemoPlan {
 }
 
 /// The simulated rig of one sensor at the demo's scale: the centre contact point, all depths,
-/// the demo's shear directions, the demo's camera size.
+/// the demo's shear directions and distance, the demo's camera size.
 pub fn demo_config(base: RigConfig, plan: &DemoPlan) -> RigConfig {
     let mut c = base;
     c.plan.contact_points_mm = vec![[0.0, 0.0]];
     c.plan.directions_deg = plan.directions_deg.clone();
+    c.plan.shear_distance_mm = plan.shear_distance_mm;
     let (w, h) = plan.camera;
     if let Some(cam) = c.camera.as_mut() {
         let scale = cam.width_px as f64 / w as f64;
