@@ -318,8 +318,18 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     let depth = indenter_pose(&frame, &rig.ur5e().snapshot().actual_tcp_pose).depth_mm;
     assert!((depth - DEPTH_MM).abs() < 1e-9, "{depth}");
 
-    // At rest 0.5 mm deep: settle 40 ms, then read 0.2 s.
+    // At rest 0.5 mm deep: settle 40 ms, then read 0.2 s. The F/T reads the newest physics
+    // step at each sample's time, so let the physics reach the rest pose first: on a busy
+    // machine it can lag the manual clock by tens of ms, and samples would read the contact
+    // of a shallower moment (a CI run read 3 % low that way).
     rig.ur5e().step_ticks(&h, 20).await;
+    let t_settled = rig.ur5e().snapshot().t_ns;
+    eventually("the physics to reach the rest pose", || {
+        rig.physics()
+            .latest()
+            .is_some_and(|(t, _)| t + 4_000_000 >= t_settled)
+    })
+    .await;
     netft.drain(&stats).await;
     rig.ur5e().step_ticks(&h, 100).await;
     let t_rest = rig.ur5e().snapshot().t_ns;
