@@ -30,6 +30,14 @@ use tokio::net::{TcpStream, UdpSocket};
 
 const DEPTH_MM: f64 = 0.5;
 
+/// Waits until the physics has a step within one physics period (4 ms) of clock time `t_ns`.
+async fn physics_reaches(physics: &ContactPhysics, t_ns: u64) {
+    eventually("the physics to catch up", || {
+        physics.latest().is_some_and(|(t, _)| t + 4_000_000 >= t_ns)
+    })
+    .await;
+}
+
 fn sphere() -> Arc<Indenter> {
     Arc::new(Indenter::builtin("sphere").unwrap())
 }
@@ -266,12 +274,7 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     // Above the surface: 0.2 s of clock time, zero force; the F/T's own offset is tared here.
     rig.ur5e().step_ticks(&h, 100).await;
     let t_above = rig.ur5e().snapshot().t_ns;
-    eventually("the physics to catch up", || {
-        rig.physics()
-            .latest()
-            .is_some_and(|(t, _)| t + 4_000_000 >= t_above)
-    })
-    .await;
+    physics_reaches(rig.physics(), t_above).await;
     assert_eq!(rig.physics().wrench_at(t_above), Wrench::default());
     assert_eq!(rig.physics().wrench_at(t_above / 2), Wrench::default());
     let tare_recs = netft.drain(&stats).await;
@@ -297,12 +300,7 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
         ticks += 1;
         let s = rig.ur5e().snapshot();
         if ticks % 10 == 0 {
-            eventually("the physics to catch up", || {
-                rig.physics()
-                    .latest()
-                    .is_some_and(|(t, _)| t + 4_000_000 >= s.t_ns)
-            })
-            .await;
+            physics_reaches(rig.physics(), s.t_ns).await;
             let fz = rig.physics().wrench_at(s.t_ns - 4_000_000).force_n[2];
             assert!(
                 fz <= fz_prev + 1e-3,
@@ -324,21 +322,11 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     // of a shallower moment (a CI run read 3 % low that way).
     rig.ur5e().step_ticks(&h, 20).await;
     let t_settled = rig.ur5e().snapshot().t_ns;
-    eventually("the physics to reach the rest pose", || {
-        rig.physics()
-            .latest()
-            .is_some_and(|(t, _)| t + 4_000_000 >= t_settled)
-    })
-    .await;
+    physics_reaches(rig.physics(), t_settled).await;
     netft.drain(&stats).await;
     rig.ur5e().step_ticks(&h, 100).await;
     let t_rest = rig.ur5e().snapshot().t_ns;
-    eventually("the physics to catch up", || {
-        rig.physics()
-            .latest()
-            .is_some_and(|(t, _)| t + 4_000_000 >= t_rest)
-    })
-    .await;
+    physics_reaches(rig.physics(), t_rest).await;
     let pressed = rig.physics().wrench_at(t_rest - 4_000_000);
     let reference = static_reference(&cfg, &physics_cfg);
     let default_cell = sim::simulate(&Scene::new(
