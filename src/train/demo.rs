@@ -27,8 +27,8 @@ use super::report::{Row, Table};
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// A few-minute version (what CI runs): fewer indenters and trajectories, smaller images and
-    /// networks, R+M only.
+    /// A small version (what CI runs; about 15 minutes in a release build on 2 cores): fewer
+    /// indenters and trajectories, smaller images and networks, R+M only.
     #[arg(long)]
     pub quick: bool,
     /// Where the data, models and results go.
@@ -76,16 +76,22 @@ impl DemoPlan {
                     // iterations, not 30 epochs.
                     lr: 1e-3,
                     batch: 4,
-                    epochs: 3,
+                    // 1200 iterations: at 600 the translated contact patches were still
+                    // smeared, and force models trained on them did not transfer shear.
+                    epochs: 6,
                     steps_per_epoch: Some(200),
                     ..TranslateConfig::default()
                 },
+                // Trained until shear is learnt (about 430 Adam steps, settled by a cosine
+                // decay). With a third of that, every model, source-only included, predicted
+                // about zero shear, and which one won on Fx/Fy was chance.
                 force: ForceConfig {
                     depth: Depth::R18,
                     width: 8,
-                    epochs: 12,
+                    epochs: 36,
                     batch: 16,
                     lr: 2e-3,
+                    lr_final: Some(2e-4),
                     ..ForceConfig::default()
                 },
             }

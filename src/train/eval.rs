@@ -19,28 +19,32 @@ pub struct Predictions {
     pub truth: Vec<[f64; 3]>,
 }
 
-/// Evaluation sequences: every frame of every trajectory exactly once, in windows of T frames
-/// in time order (consecutive frames; the last window of a trajectory is shifted back to end on
-/// its last frame, and its frames already scored are skipped).
+/// Evaluation sequences: every frame of every trajectory scored exactly once, in windows of T
+/// frames in time order that span the trajectory the way the training sequences do.
+///
+/// Training draws T frames in time order from the whole trajectory (the paper's sampling), so
+/// the LSTM learns from frames about n/T apart. Windows of consecutive frames would show it a
+/// history it never saw in training. Here a trajectory of n frames is read at the stride
+/// s = ⌊n/T⌋: the windows {o, o+s, …, o+(T−1)s} for o = 0..s cover frames 0..sT exactly once,
+/// and each of the (fewer than T) frames after them ends a window of the same stride, of which
+/// only that last frame is scored. Returns each window with how many of its leading positions
+/// are not scored.
 pub fn eval_windows(lengths: &[usize], t: usize) -> Vec<(Sequence, usize)> {
     let mut out = Vec::new();
     for (traj, &n) in lengths.iter().enumerate() {
         if n < t || t == 0 {
             continue;
         }
-        let mut start = 0;
-        while start < n {
-            let s = start.min(n - t);
-            // Positions before `skip` were scored by the previous window.
-            let skip = start - s;
-            out.push((
-                Sequence {
-                    traj,
-                    frames: (s..s + t).collect(),
-                },
-                skip,
-            ));
-            start += t;
+        let s = n / t;
+        for o in 0..s {
+            let frames = (0..t).map(|k| o + k * s).collect();
+            out.push((Sequence { traj, frames }, 0));
+        }
+        // s·t ≤ n < (s+1)·t: at most t − 1 frames are left, each ≥ s·t, so a window of stride s
+        // ending on one starts at ≥ s.
+        for last in s * t..n {
+            let frames = (0..t).map(|k| last - (t - 1 - k) * s).collect();
+            out.push((Sequence { traj, frames }, t - 1));
         }
     }
     out
@@ -242,14 +246,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn eval_windows_score_every_frame_once() {
-        let lens = [20, 8, 5, 9];
+    fn eval_windows_score_every_frame_once_at_the_training_stride() {
+        let lens = [20, 8, 5, 9, 58, 63, 64];
         let w = eval_windows(&lens, 8);
         for (traj, &n) in lens.iter().enumerate() {
             let mut seen = vec![0; n];
             for (s, skip) in w.iter().filter(|(s, _)| s.traj == traj) {
                 assert_eq!(s.frames.len(), 8);
-                assert!(s.frames.windows(2).all(|p| p[1] == p[0] + 1));
+                // Evenly spaced, in time order, at the stride ⌊n/T⌋, inside the trajectory.
+                assert!(s.frames.windows(2).all(|p| p[1] == p[0] + n / 8));
+                assert!(*s.frames.last().unwrap() < n);
                 for &i in s.frames.iter().skip(*skip) {
                     seen[i] += 1;
                 }
@@ -260,6 +266,13 @@ mod tests {
                 assert!(seen.iter().all(|&c| c == 0));
             }
         }
+        // 58 frames: stride 7, windows at offsets 0..7 cover 0..56; frames 56 and 57 each end
+        // one more window.
+        let w58: Vec<_> = w.iter().filter(|(s, _)| s.traj == 4).collect();
+        assert_eq!(w58.len(), 9);
+        assert_eq!(w58[0].0.frames, vec![0, 7, 14, 21, 28, 35, 42, 49]);
+        assert_eq!(w58[8].0.frames, vec![8, 15, 22, 29, 36, 43, 50, 57]);
+        assert_eq!(w58[8].1, 7);
     }
 
     #[test]
