@@ -958,10 +958,14 @@ pub async fn run(
     let mut sim = None;
     let (endpoints, devices) = if simulated {
         // The simulated camera stamps its buffers on the shared clock, as a UVC camera under
-        // V4L2 stamps them on the host's CLOCK_MONOTONIC.
+        // V4L2 stamps them on the host's CLOCK_MONOTONIC. It keeps as many buffers as give the
+        // reader the real-time slack of 8 buffers at 1× (the V4L2 reader's default): at ×10,
+        // 16 buffers were 64 ms of real time, and a busy CI machine once let the reader fall
+        // that far behind, so a frame was overrun before the governor could slow the clock.
+        let buffers = (8.0 * opts.speed_factor).ceil().clamp(16.0, 256.0) as usize;
         let camera = config.camera.as_ref().map(|c| SimCameraConfig {
             device_offset_ns: 0,
-            queue_len: 16,
+            queue_len: buffers,
             ..SimCameraConfig::ideal(c.fps)
         });
         let sim_opts = SimRigOptions {
