@@ -959,10 +959,11 @@ pub async fn run(
     let (endpoints, devices) = if simulated {
         // The simulated camera stamps its buffers on the shared clock, as a UVC camera under
         // V4L2 stamps them on the host's CLOCK_MONOTONIC. It keeps as many buffers as give the
-        // reader the real-time slack of 8 buffers at 1× (the V4L2 reader's default): at ×10,
-        // 16 buffers were 64 ms of real time, and a busy CI machine once let the reader fall
-        // that far behind, so a frame was overrun before the governor could slow the clock.
-        let buffers = (8.0 * opts.speed_factor).ceil().clamp(16.0, 256.0) as usize;
+        // reader the real-time slack the V4L2 reader's queue has at 1×: at ×10, 16 buffers were
+        // 64 ms of real time, and a busy CI machine once let the reader fall that far behind,
+        // so a frame was overrun before the governor could slow the clock.
+        let real_slack = crate::camera::v4l2::V4l2Options::default().queue_len as f64;
+        let buffers = (real_slack * opts.speed_factor).ceil().clamp(16.0, 256.0) as usize;
         let camera = config.camera.as_ref().map(|c| SimCameraConfig {
             device_offset_ns: 0,
             queue_len: buffers,
