@@ -13,7 +13,7 @@ use std::process::Command;
 
 use rig::record::Manifest;
 
-mod common;
+use crate::common;
 
 /// The simulated Nano17's force noise, σ per axis: its resolution, 1/160 N.
 const FORCE_NOISE_N: f64 = 1.0 / 160.0;
@@ -72,6 +72,7 @@ fn read(path: &Path) -> Frames {
 
 #[test]
 fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
+    let _g = common::one_rig_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
     let cfg = common::edited_sim_config(
         tmp.path(),

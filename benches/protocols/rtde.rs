@@ -89,7 +89,7 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[i]
 }
 
-fn latency_table(samples: usize) {
+pub fn latency_table(samples: usize) {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(4)
         .enable_all()
@@ -143,12 +143,4 @@ fn latency_table(samples: usize) {
         client.shutdown().await;
         mock.shutdown().await;
     });
-}
-
-fn main() {
-    // `cargo test --benches` runs benches in test mode: keep that quick.
-    let quick = std::env::args().any(|a| a == "--test");
-    latency_table(if quick { 200 } else { 2000 });
-    benches();
-    Criterion::default().configure_from_args().final_summary();
 }

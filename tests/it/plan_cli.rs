@@ -6,7 +6,7 @@ use std::process::{Command, Output};
 
 use serde_json::Value;
 
-const SIM_SOURCE: &str = include_str!("../rig-configs/sim-source.toml");
+const SIM_SOURCE: &str = include_str!("../../rig-configs/sim-source.toml");
 
 /// Runs `rig` in `dir` (a scratch directory, so no stray ./rig.toml is picked up).
 fn rig_in(dir: &Path, args: &[&str]) -> Output {

@@ -1,8 +1,8 @@
 //! Helpers shared by the tests that drive the `rig` binary on the simulated rig.
-#![allow(dead_code)] // each test binary uses its own subset
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
+use std::sync::{Mutex, MutexGuard};
 
 /// The built-in simulated rig's config, as shipped.
 pub fn sim_config() -> PathBuf {
@@ -33,4 +33,12 @@ pub fn output_text(out: &Output) -> String {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     )
+}
+
+/// One simulated-rig run (`rig run` on the built-in rig) at a time in this test binary: the test
+/// harness runs tests in parallel, and two rigs rendering their cameras on a two-core machine
+/// (beside the demo's training) only slow each other down. The guard is held for the test.
+pub fn one_rig_at_a_time() -> MutexGuard<'static, ()> {
+    static RIG: Mutex<()> = Mutex::new(());
+    RIG.lock().unwrap_or_else(|e| e.into_inner())
 }

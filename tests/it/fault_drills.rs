@@ -11,18 +11,12 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::Mutex;
 
 use rig::record::{Manifest, Status, final_name, read_file};
 
-mod common;
+use crate::common;
 
-/// Two cores: one rig run at a time.
-static SERIAL: Mutex<()> = Mutex::new(());
-
-fn serial() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
-}
+use common::one_rig_at_a_time as serial;
 
 const T1: &str = "p0-d0.2-a000";
 const T2: &str = "p0-d0.2-a030";

@@ -17,7 +17,7 @@ use rig_core::ft::netft::{RdtRecord, SequenceTracker};
 use rig_core::ft::serial::{CountsRecord, OutputMode, SerialEvent, SerialParser, plausible_counts};
 
 const N: usize = 10_000;
-const CAL: &str = include_str!("../tests/data/nano17_useraxis.cal");
+const CAL: &str = include_str!("../../tests/data/nano17_useraxis.cal");
 
 fn counts(k: usize) -> [i32; 6] {
     let k = k as i32;
@@ -152,7 +152,7 @@ fn rate(mut f: impl FnMut() -> f64) -> f64 {
     (reps * N) as f64 / t.elapsed().as_secs_f64()
 }
 
-fn summary() {
+pub fn summary() {
     let ascii = serial_bytes(OutputMode::Ascii);
     let binary = serial_bytes(OutputMode::Binary);
     let rdt = rdt_datagrams();
@@ -186,9 +186,3 @@ fn summary() {
 }
 
 criterion_group!(benches, bench);
-
-fn main() {
-    benches();
-    Criterion::default().configure_from_args().final_summary();
-    summary();
-}

@@ -12,19 +12,13 @@ use std::collections::BTreeMap;
 use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use rig::record::{Counts, Manifest, Status, final_name, read_file};
 
-mod common;
+use crate::common;
 
-/// The rig runs of this file share two CPU cores badly: one at a time.
-static SERIAL: Mutex<()> = Mutex::new(());
-
-fn serial() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
-}
+use common::one_rig_at_a_time as serial;
 
 /// The built-in simulated rig's config, as shipped (the run scales its watchdog to the
 /// simulated clock's speed, so ×20 needs no relaxed settings).

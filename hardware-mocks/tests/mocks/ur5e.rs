@@ -1,7 +1,7 @@
 //! The simulated UR5e over real TCP on loopback, driven by a raw codec client, with a manual
 //! clock wherever timing is asserted.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

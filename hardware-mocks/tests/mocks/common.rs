@@ -1,8 +1,6 @@
 //! A deliberately small RTDE client for the mock's tests, written on the sans-IO codec, so the
 //! tests do not depend on the rig's own client.
 
-#![allow(dead_code)]
-
 use std::net::SocketAddr;
 use std::time::Duration;
 

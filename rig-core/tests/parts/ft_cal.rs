@@ -5,8 +5,8 @@ use rig_core::ft::bias::BiasEstimator;
 use rig_core::ft::cal::{CalError, Calibration, MatrixSource};
 use rig_core::ft::transform::{ToolTransform, TransformError};
 
-const USER: &str = include_str!("../../tests/data/nano17_useraxis.cal");
-const AXIS: &str = include_str!("../../tests/data/nano17_axis_only.cal");
+const USER: &str = include_str!("../../../tests/data/nano17_useraxis.cal");
+const AXIS: &str = include_str!("../../../tests/data/nano17_axis_only.cal");
 
 fn max_rel(a: &Matrix6<f64>, b: &Matrix6<f64>) -> f64 {
     let mut worst: f64 = 0.0;

@@ -2,7 +2,7 @@
 //! contact physics gives the force (read back through the Net F/T mock over UDP) and the image.
 //! Manual clock: every step of time is the test's.
 
-mod common;
+use crate::common;
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
