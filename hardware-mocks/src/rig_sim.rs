@@ -651,6 +651,8 @@ impl SimFt {
 /// The running simulated rig: UR5e, contact physics, Net F/T and (optionally) camera on one
 /// clock. Dropping it stops every task.
 pub struct SimRig {
+    /// Holds simulated time while the runtime the rig runs on is stalled.
+    _runtime_pacer: AbortOnDrop,
     ur5e: Arc<Ur5e>,
     physics: ContactPhysics,
     physics_task: AbortOnDrop,
@@ -676,6 +678,10 @@ impl SimRig {
             max_frequency_hz: config.robot.controller.max_rtde_frequency_hz(),
             ..Ur5eConfig::default()
         };
+        let runtime_pacer = AbortOnDrop(Some(rig_core::clock::spawn_runtime_pacer(
+            &clock,
+            rig_core::clock::SIM_PACER_LEAD,
+        )));
         let ur5e = Arc::new(Ur5e::start(ur_cfg, clock.clone()).await?);
 
         let physics = ContactPhysics::new(
@@ -764,6 +770,7 @@ impl SimRig {
             "simulated rig started"
         );
         Ok(SimRig {
+            _runtime_pacer: runtime_pacer,
             ur5e,
             physics,
             physics_task,
@@ -820,12 +827,14 @@ impl SimRig {
     /// Stops every task and closes every socket.
     pub async fn shutdown(self) {
         let SimRig {
+            _runtime_pacer,
             ur5e,
             physics: _,
             physics_task,
             ft,
             camera,
         } = self;
+        _runtime_pacer.stop().await;
         drop(camera);
         ft.shutdown().await;
         physics_task.stop().await;

@@ -9,6 +9,15 @@
 //! - [`Clock::manual`]: time moves only when a test advances the returned [`ClockHandle`], so a
 //!   test that steps time is deterministic.
 //!
+//! A simulated clock ([`Clock::scaled`], [`Clock::governed`]) also waits for the simulation: a
+//! participant registers a [`Pacer`] and reports how far it has got, and the clock never runs
+//! more than the pacer's lead (a span of real time) ahead of the slowest one. When the host
+//! stalls (a descheduled thread, a slow disk, a debug build, a CPU-heavy job beside it) the
+//! participants stop reporting and simulated time holds instead of racing on, so a timeout of
+//! half a second of simulated time still means half a second of the simulation's own work.
+//! [`spawn_runtime_pacer`] paces the clock on the tokio runtime itself. On the system clock a
+//! pacer does nothing: lab timeouts keep their meaning.
+//!
 //! Time is a `u64` count of nanoseconds since the clock's epoch (its creation), named `t_ns`
 //! throughout the code base. Device clocks (RTDE `timestamp`, F/T sequence counters, V4L2 buffer
 //! stamps) are mapped onto this one by explicit estimators, never assumed equal to it.
@@ -35,19 +44,118 @@ enum Inner {
     System {
         origin: Instant,
     },
-    Scaled {
-        origin: Instant,
-        factor: f64,
-    },
     Manual {
         now_ns: AtomicU64,
         tick: watch::Sender<u64>,
     },
-    Governed {
-        seg: std::sync::Mutex<Segment>,
-        /// Bumped on every rate change, so sleepers recompute their deadlines.
+    /// [`Clock::scaled`] (`adjustable: false`) and [`Clock::governed`].
+    Simulated {
+        state: std::sync::Mutex<SimState>,
+        /// Bumped on every rate change and whenever a hold is lifted, so sleepers recompute
+        /// their deadlines.
         changed: watch::Sender<u64>,
+        adjustable: bool,
     },
+}
+
+/// The state of a simulated clock: the current stretch at one rate, and the pacers it waits for.
+#[derive(Debug)]
+struct SimState {
+    seg: Segment,
+    /// The last time read: the clock never goes back, even when a pacer joins late.
+    last_ns: u64,
+    pacers: Vec<PacerSlot>,
+    next_id: u64,
+    /// Whether the clock is holding now (its free-running time is past a pacer's limit).
+    holding: bool,
+    stats: HoldStats,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct PacerSlot {
+    id: u64,
+    name: &'static str,
+    reached_ns: u64,
+    lead: Duration,
+}
+
+/// How often, and how long in real time, a simulated clock held for its pacers.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct HoldStats {
+    /// Episodes of holding (a hold starts when the clock first reaches a pacer's limit).
+    pub holds: u64,
+    /// Real time spent holding, summed over the episodes that have ended.
+    pub held_s: f64,
+    /// The pacer that started the most recent hold.
+    pub last_holder: Option<&'static str>,
+    started: Option<std::time::Instant>,
+}
+
+impl SimState {
+    fn new(factor: f64) -> Self {
+        Self {
+            seg: Segment {
+                base: Instant::now(),
+                base_ns: 0,
+                factor,
+            },
+            last_ns: 0,
+            pacers: Vec::new(),
+            next_id: 0,
+            holding: false,
+            stats: HoldStats::default(),
+        }
+    }
+
+    /// The latest time the pacers allow, and the pacer that sets it (`u64::MAX` with none).
+    fn limit(&self) -> (u64, Option<&'static str>) {
+        let factor = self.seg.factor;
+        self.pacers
+            .iter()
+            .map(|p| {
+                let lead_ns = (p.lead.as_secs_f64() * factor * 1e9).min(1e18) as u64;
+                (p.reached_ns.saturating_add(lead_ns), Some(p.name))
+            })
+            .min_by_key(|(t, _)| *t)
+            .unwrap_or((u64::MAX, None))
+    }
+
+    /// The clock's time now. When the free-running time passes the pacers' limit the clock
+    /// holds there: the stretch restarts at the limit, so time moves on from it (never jumps)
+    /// once the pacers catch up.
+    fn now_ns(&mut self) -> u64 {
+        let free = self.seg.now_ns();
+        let (limit, holder) = self.limit();
+        let t = if free > limit {
+            let t = limit.max(self.last_ns);
+            self.seg = Segment {
+                base: Instant::now(),
+                base_ns: t,
+                factor: self.seg.factor,
+            };
+            if !self.holding {
+                self.holding = true;
+                self.stats.holds += 1;
+                self.stats.last_holder = holder;
+                self.stats.started = Some(std::time::Instant::now());
+            }
+            t
+        } else {
+            self.end_hold();
+            free.max(self.last_ns)
+        };
+        self.last_ns = t;
+        t
+    }
+
+    fn end_hold(&mut self) {
+        if self.holding {
+            self.holding = false;
+            if let Some(s) = self.stats.started.take() {
+                self.stats.held_s += s.elapsed().as_secs_f64();
+            }
+        }
+    }
 }
 
 /// A stretch of a governed clock at one rate: `t = base_ns + (now − base) · factor`.
@@ -76,6 +184,60 @@ pub struct ClockHandle {
     clock: Clock,
 }
 
+/// A participant of a simulated clock: the clock runs at most `lead` of real time ahead of the
+/// time this pacer last [reached](Pacer::reached). Made by [`Clock::pacer`]; dropping it lets the
+/// clock go on without it. On the system and manual clocks it does nothing.
+///
+/// The lead must be longer than the real time the participant needs between two reports at
+/// the clock's rate (a task that waits for the clock to reach its next step must be allowed to
+/// get there), or the clock would wait for it forever.
+#[derive(Debug)]
+pub struct Pacer {
+    clock: Clock,
+    id: u64,
+}
+
+impl Pacer {
+    /// The participant has done its work up to clock time `t_ns`.
+    pub fn reached(&self, t_ns: u64) {
+        self.clock.with_pacers(|st| {
+            if let Some(p) = st.pacers.iter_mut().find(|p| p.id == self.id) {
+                p.reached_ns = p.reached_ns.max(t_ns);
+            }
+        });
+    }
+}
+
+impl Drop for Pacer {
+    fn drop(&mut self) {
+        self.clock
+            .with_pacers(|st| st.pacers.retain(|p| p.id != self.id));
+    }
+}
+
+/// The lead the simulated devices give their pacers: 20 ms of real time. Long enough that a
+/// task woken a few timer ticks late (tokio's timers have 1 ms resolution) does not hold the
+/// clock; short enough that a stalled host costs a simulated timeout no more than this much of
+/// its budget (at ×10, 200 ms of clock time against the rig's 500 ms acknowledgement timeout).
+pub const SIM_PACER_LEAD: Duration = Duration::from_millis(20);
+
+/// Paces a simulated clock on the tokio runtime it is called in: a task that reports the clock's
+/// time every millisecond of real time, so that when the runtime stalls (its threads
+/// descheduled, the process stopped) simulated time holds at most `lead` of real time later.
+/// Returns the task; abort it (or drop the runtime) to stop pacing. Does nothing useful on the
+/// system or manual clock.
+pub fn spawn_runtime_pacer(clock: &Clock, lead: Duration) -> tokio::task::JoinHandle<()> {
+    let pacer = clock.pacer("tokio runtime", lead);
+    let clock = clock.clone();
+    tokio::spawn(async move {
+        loop {
+            pacer.reached(clock.now_ns());
+            // Real time: the pacer watches the machine, not the simulation.
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+    })
+}
+
 /// Error of [`Clock::timeout`]: the deadline passed before the future completed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[error("timed out after {0:?} of clock time")]
@@ -102,10 +264,16 @@ impl Clock {
         if factor == 1.0 {
             return Self::system();
         }
+        Self::simulated(factor, false)
+    }
+
+    fn simulated(factor: f64, adjustable: bool) -> Self {
+        let (changed, _) = watch::channel(0);
         Self {
-            inner: Arc::new(Inner::Scaled {
-                origin: Instant::now(),
-                factor,
+            inner: Arc::new(Inner::Simulated {
+                state: std::sync::Mutex::new(SimState::new(factor)),
+                changed,
+                adjustable,
             }),
         }
     }
@@ -122,34 +290,28 @@ impl Clock {
             factor.is_finite() && factor > 0.0,
             "clock scale factor must be finite and positive, got {factor}"
         );
-        let (changed, _) = watch::channel(0);
-        Self {
-            inner: Arc::new(Inner::Governed {
-                seg: std::sync::Mutex::new(Segment {
-                    base: Instant::now(),
-                    base_ns: 0,
-                    factor,
-                }),
-                changed,
-            }),
-        }
+        Self::simulated(factor, true)
     }
 
     /// Changes the rate of a [`Clock::governed`] clock from now on; returns `false` (and does
     /// nothing) for any other clock or a rate that is not finite and positive.
     pub fn set_rate(&self, factor: f64) -> bool {
-        let Inner::Governed { seg, changed } = &*self.inner else {
+        let Inner::Simulated {
+            state,
+            changed,
+            adjustable: true,
+        } = &*self.inner
+        else {
             return false;
         };
         if !(factor.is_finite() && factor > 0.0) {
             return false;
         }
         {
-            let mut g = seg.lock().unwrap_or_else(|p| p.into_inner());
-            let now = Instant::now();
+            let mut g = state.lock().unwrap_or_else(|p| p.into_inner());
             let t = g.now_ns();
-            *g = Segment {
-                base: now,
+            g.seg = Segment {
+                base: Instant::now(),
                 base_ns: t,
                 factor,
             };
@@ -178,9 +340,10 @@ impl Clock {
     pub fn rate(&self) -> f64 {
         match &*self.inner {
             Inner::System { .. } => 1.0,
-            Inner::Scaled { factor, .. } => *factor,
             Inner::Manual { .. } => f64::INFINITY,
-            Inner::Governed { seg, .. } => seg.lock().unwrap_or_else(|p| p.into_inner()).factor,
+            Inner::Simulated { state, .. } => {
+                state.lock().unwrap_or_else(|p| p.into_inner()).seg.factor
+            }
         }
     }
 
@@ -188,12 +351,10 @@ impl Clock {
     pub fn now_ns(&self) -> u64 {
         match &*self.inner {
             Inner::System { origin } => saturating_ns(origin.elapsed()),
-            Inner::Scaled { origin, factor } => {
-                let real = origin.elapsed().as_secs_f64();
-                (real * factor * 1e9) as u64
-            }
             Inner::Manual { now_ns, .. } => now_ns.load(Ordering::Acquire),
-            Inner::Governed { seg, .. } => seg.lock().unwrap_or_else(|p| p.into_inner()).now_ns(),
+            Inner::Simulated { state, .. } => {
+                state.lock().unwrap_or_else(|p| p.into_inner()).now_ns()
+            }
         }
     }
 
@@ -207,15 +368,65 @@ impl Clock {
         self.now_ns() as f64 * 1e-9
     }
 
+    /// Registers a participant that this clock waits for (see [`Pacer`]): from now on the clock
+    /// runs at most `lead` of real time ahead of the time the pacer last reached, which starts
+    /// at the clock's time now. On the system and manual clocks the pacer does nothing.
+    pub fn pacer(&self, name: &'static str, lead: Duration) -> Pacer {
+        let mut id = u64::MAX;
+        let now = self.now_ns();
+        self.with_pacers(|st| {
+            id = st.next_id;
+            st.next_id += 1;
+            st.pacers.push(PacerSlot {
+                id,
+                name,
+                reached_ns: now,
+                lead,
+            });
+        });
+        Pacer {
+            clock: self.clone(),
+            id,
+        }
+    }
+
+    /// How often this clock held for its pacers (all zero for the system and manual clocks).
+    pub fn hold_stats(&self) -> HoldStats {
+        match &*self.inner {
+            Inner::Simulated { state, .. } => {
+                let g = state.lock().unwrap_or_else(|p| p.into_inner());
+                let mut s = g.stats;
+                if let Some(t) = s.started {
+                    s.held_s += t.elapsed().as_secs_f64();
+                }
+                s
+            }
+            _ => HoldStats::default(),
+        }
+    }
+
+    /// Changes the pacers of a simulated clock; wakes the sleepers when that lifts a hold.
+    fn with_pacers(&self, f: impl FnOnce(&mut SimState)) {
+        let Inner::Simulated { state, changed, .. } = &*self.inner else {
+            return;
+        };
+        let lifted = {
+            let mut g = state.lock().unwrap_or_else(|p| p.into_inner());
+            let before = g.limit().0;
+            let held = g.seg.now_ns() > before;
+            f(&mut g);
+            held && g.limit().0 > before
+        };
+        if lifted {
+            changed.send_modify(|g| *g = g.wrapping_add(1));
+        }
+    }
+
     /// Sleep until the clock reads at least `t_ns`.
     pub async fn sleep_until_ns(&self, t_ns: u64) {
         match &*self.inner {
             Inner::System { origin } => {
                 tokio::time::sleep_until(*origin + Duration::from_nanos(t_ns)).await;
-            }
-            Inner::Scaled { origin, factor } => {
-                let real = Duration::from_secs_f64(t_ns as f64 * 1e-9 / factor);
-                tokio::time::sleep_until(*origin + real).await;
             }
             Inner::Manual { tick, .. } => {
                 let mut rx = tick.subscribe();
@@ -223,22 +434,31 @@ impl Clock {
                 // returns at once. The sender lives in `self`, so the channel never closes here.
                 let _ = rx.wait_for(|now| *now >= t_ns).await;
             }
-            Inner::Governed { seg, changed } => {
+            Inner::Simulated { state, changed, .. } => {
                 let mut rx = changed.subscribe();
                 loop {
-                    // Subscribed before reading the segment: a change after this is seen.
+                    // Subscribed before reading the state: a change after this is seen.
                     rx.borrow_and_update();
                     let (now, deadline) = {
-                        let g = seg.lock().unwrap_or_else(|p| p.into_inner());
-                        (g.now_ns(), g.deadline(t_ns))
+                        let mut g = state.lock().unwrap_or_else(|p| p.into_inner());
+                        let now = g.now_ns();
+                        // While holding only a pacer's report moves time; otherwise wake at the
+                        // deadline, or where the clock will start to hold, whichever is first.
+                        let deadline = (!g.holding).then(|| g.seg.deadline(t_ns.min(g.limit().0)));
+                        (now, deadline)
                     };
                     if now >= t_ns {
                         return;
                     }
-                    tokio::select! {
-                        _ = tokio::time::sleep_until(deadline) => {}
-                        // The sender lives in `self`: the channel never closes here.
-                        _ = rx.changed() => {}
+                    match deadline {
+                        Some(deadline) => tokio::select! {
+                            _ = tokio::time::sleep_until(deadline) => {}
+                            // The sender lives in `self`: the channel never closes here.
+                            _ = rx.changed() => {}
+                        },
+                        None => {
+                            let _ = rx.changed().await;
+                        }
                     }
                 }
             }
@@ -252,8 +472,11 @@ impl Clock {
     }
 
     /// Run `fut` with a deadline of `d` clock time.
+    /// When both are ready at once (a task that ran late), the future's output wins: what it
+    /// waited for did arrive.
     pub async fn timeout<F: Future>(&self, d: Duration, fut: F) -> Result<F::Output, Elapsed> {
         tokio::select! {
+            biased;
             out = fut => Ok(out),
             _ = self.sleep(d) => Err(Elapsed(d)),
         }
@@ -449,5 +672,133 @@ mod tests {
         assert!(!clock.set_rate(f64::NAN));
         assert!(!clock.set_rate(0.0));
         assert!(!Clock::scaled(2.0).set_rate(3.0), "a fixed clock refuses");
+    }
+
+    const MS: u64 = 1_000_000;
+
+    #[test]
+    fn a_simulated_clock_holds_for_a_pacer_that_stops_reporting_and_never_jumps() {
+        let clock = Clock::governed(100.0);
+        // 5 ms of real time at ×100: the clock may run 500 ms ahead of the pacer.
+        let pacer = clock.pacer("controller", Duration::from_millis(5));
+        let t0 = clock.now_ns();
+        // A stalled participant: 40 ms of real time would be 4 s of free-running clock time.
+        std::thread::sleep(Duration::from_millis(40));
+        let held = clock.now_ns();
+        assert!(
+            held <= t0 + 500 * MS,
+            "ran {} ms past the pacer",
+            (held - t0) / MS
+        );
+        assert!(
+            held >= t0 + 400 * MS,
+            "held early, at {} ms",
+            (held - t0) / MS
+        );
+        std::thread::sleep(Duration::from_millis(5));
+        assert_eq!(clock.now_ns(), held, "time moved while holding");
+        let stats = clock.hold_stats();
+        assert_eq!(stats.holds, 1);
+        assert_eq!(stats.last_holder, Some("controller"));
+        assert!(stats.held_s >= 0.005, "{stats:?}");
+
+        // The pacer catches up: time goes on from where it held, it does not jump to the
+        // free-running time.
+        pacer.reached(held);
+        let real = std::time::Instant::now();
+        let after = clock.now_ns();
+        let bound = held + (real.elapsed().as_secs_f64() * 100.0 * 1e9) as u64 + 10 * MS;
+        assert!(
+            after >= held && after <= bound,
+            "jumped from {held} to {after}"
+        );
+
+        // Dropping the pacer frees the clock.
+        drop(pacer);
+        std::thread::sleep(Duration::from_millis(40));
+        assert!(clock.now_ns() >= after + 3_000 * MS);
+        assert_eq!(clock.hold_stats().holds, 1);
+    }
+
+    #[tokio::test]
+    async fn a_sleeper_beyond_the_pacers_limit_wakes_once_the_pacer_gets_there() {
+        let clock = Clock::governed(100.0);
+        let pacer = clock.pacer("camera", Duration::from_millis(2)); // 200 ms of clock time
+        let c2 = clock.clone();
+        let sleeper = tokio::spawn(async move {
+            c2.sleep_until_ns(1_000 * MS).await; // 10 ms of real time if nothing held
+            c2.now_ns()
+        });
+        tokio::time::sleep(Duration::from_millis(40)).await;
+        assert!(!sleeper.is_finished(), "woke although the clock held");
+        assert!(clock.now_ns() <= 200 * MS + MS);
+        // The pacer reports as it goes: the clock moves on and the sleeper wakes on time.
+        let reporter = {
+            let clock = clock.clone();
+            tokio::spawn(async move {
+                loop {
+                    pacer.reached(clock.now_ns());
+                    tokio::time::sleep(Duration::from_millis(1)).await;
+                }
+            })
+        };
+        let woke = tokio::time::timeout(Duration::from_secs(5), sleeper)
+            .await
+            .expect("the sleeper never woke after the pacer caught up")
+            .unwrap();
+        assert!(woke >= 1_000 * MS, "woke at {woke} ns, before its deadline");
+        reporter.abort();
+    }
+
+    #[test]
+    fn the_runtime_pacer_holds_time_while_the_runtime_is_blocked() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let clock = Clock::governed(100.0);
+            let _pacer = spawn_runtime_pacer(&clock, Duration::from_millis(5));
+            tokio::time::sleep(Duration::from_millis(10)).await;
+            let t0 = clock.now_ns();
+            // The only runtime thread stalls for 100 ms of real time (10 s of clock time).
+            std::thread::sleep(Duration::from_millis(100));
+            let t1 = clock.now_ns();
+            // At most the lead (500 ms) past the pacer's last report, which was at most a
+            // couple of milliseconds of real time (a few hundred ms of clock time) before t0.
+            assert!(
+                t1 - t0 <= 800 * MS,
+                "ran {} ms during the stall",
+                (t1 - t0) / MS
+            );
+            // The runtime runs again: so does the clock.
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            assert!(clock.now_ns() > t1 + 500 * MS);
+        });
+    }
+
+    #[tokio::test]
+    async fn a_pacer_on_the_system_clock_changes_nothing() {
+        let clock = Clock::system();
+        let pacer = clock.pacer("controller", Duration::from_millis(1));
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        pacer.reached(0);
+        assert!(clock.now_ns() >= 20 * MS);
+        assert_eq!(clock.hold_stats(), HoldStats::default());
+    }
+
+    #[tokio::test]
+    async fn a_timeout_whose_future_is_ready_is_not_reported_as_elapsed() {
+        // A task that ran late finds both its result and its deadline ready: the result wins.
+        let (clock, handle) = Clock::manual();
+        for _ in 0..64 {
+            let (tx, rx) = tokio::sync::oneshot::channel::<u32>();
+            let c2 = clock.clone();
+            let task = tokio::spawn(async move { c2.timeout(Duration::from_millis(1), rx).await });
+            tokio::task::yield_now().await; // the task is waiting on both
+            tx.send(7).unwrap();
+            handle.advance(Duration::from_millis(5));
+            assert_eq!(task.await.unwrap().map(Result::ok), Ok(Some(7)));
+        }
     }
 }

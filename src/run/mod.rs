@@ -262,6 +262,9 @@ pub struct RunSummary {
     pub clock_time_s: f64,
     /// Wall-clock time of the whole run, s.
     pub wall_time_s: f64,
+    /// Simulated rig only: how often, and how long in real time, simulated time held for a
+    /// simulated device or the runtime that fell behind (a stalled or busy host).
+    pub clock_holds: rig_core::clock::HoldStats,
     /// Times a stream or the sync task waited for the writer (slow disk).
     pub backpressure_waits: u64,
     /// Frames received from the camera in the whole run (recorded or not).
@@ -1217,6 +1220,7 @@ pub async fn run(
     bar.finish_and_clear();
     summary.not_attempted = todo.len() - attempted;
     summary.clock_time_s = (clock.now_ns() - t0) as f64 * 1e-9;
+    summary.clock_holds = clock.hold_stats();
     let c = streams.counters().clone();
     summary.frames_received = c.frames();
     summary.frames_lost = c.frames_dropped();
@@ -1476,6 +1480,15 @@ impl RunSummary {
         s.push_str(&format!(
             "TCP path: max deviation from the planned lines {max_dev:.4} mm, max depth beyond plan {max_over:.4} mm\n"
         ));
+        let h = &self.clock_holds;
+        if h.holds > 0 {
+            s.push_str(&format!(
+                "simulated time held {} times ({:.2} s of real time; last for the {}): the host fell behind\n",
+                h.holds,
+                h.held_s,
+                h.last_holder.unwrap_or("a device")
+            ));
+        }
         if self.backpressure_waits > 0 {
             s.push_str(&format!(
                 "back-pressure: the writer fell behind {} times (slow disk?); nothing was dropped\n",

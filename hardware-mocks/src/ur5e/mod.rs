@@ -5,7 +5,8 @@
 //! [`Ur5e::start`] binds three TCP listeners and spawns:
 //!
 //! - the **controller task**, ticking on the shared [`Clock`] at `max_frequency_hz` (500 Hz,
-//!   2 ms, on e-Series; 125 Hz on a CB3 variant); every tick is processed, late wake-ups catch up. Each tick advances the
+//!   2 ms, on e-Series; 125 Hz on a CB3 variant); every tick is processed, late wake-ups catch up,
+//!   and a simulated clock waits for the task when it falls behind. Each tick advances the
 //!   [`controller`] model (motion, program, watchdog) and broadcasts a [`ControllerSnapshot`];
 //! - the **RTDE server** ([`rtde_server`]), one task per connection, which turns those
 //!   snapshots into data packages at each recipe's frequency and writes input packages into the
@@ -382,8 +383,15 @@ impl Drop for Ur5e {
 /// shorter than that) it processes the missed ticks at once, each with its own time stamp, so
 /// the RTDE stream keeps its full rate in clock time. Only when it falls more than
 /// [`MAX_CATCH_UP_NS`] behind (the process was suspended) does it skip ahead, with a warning.
+///
+/// The task paces a simulated clock ([`rig_core::clock::Pacer`]): when it falls behind (the host
+/// stalled), simulated time holds for it instead of running on without a controller, so the
+/// rig's timeouts on clock time do not fire for the host's sake.
 async fn run_controller(shared: Arc<Shared>) {
     let period = shared.tick_period_ns;
+    let pacer = shared
+        .clock
+        .pacer("simulated UR5e controller", rig_core::clock::SIM_PACER_LEAD);
     loop {
         let next_ns = *shared
             .next_tick_ns
@@ -401,6 +409,7 @@ async fn run_controller(shared: Arc<Shared>) {
             *next = (*next).max(next_ns + skipped * period);
         }
         shared.process_due_ticks(now);
+        pacer.reached(now);
     }
 }
 
