@@ -144,23 +144,27 @@ pub struct CycleGan {
 impl CycleGan {
     pub fn new(cfg: &TranslateConfig) -> Self {
         let dev = super::force::device();
-        dev.seed(cfg.seed);
-        let adev = dev.autodiff();
         let adam = || {
             AdamConfig::new()
                 .with_beta_1(cfg.beta1)
                 .with_beta_2(0.999)
                 .init()
         };
-        Self {
-            gens: Generators {
+        let (gens, discs, adev) = super::force::build_networks(&dev, Some(cfg.seed), || {
+            let adev = dev.clone().autodiff();
+            let gens = Generators {
                 s2t: Generator::new(&cfg.shape, &adev),
                 t2s: Generator::new(&cfg.shape, &adev),
-            },
-            discs: Discriminators {
+            };
+            let discs = Discriminators {
                 t: Discriminator::new(&cfg.shape, &adev),
                 s: Discriminator::new(&cfg.shape, &adev),
-            },
+            };
+            (gens, discs, adev)
+        });
+        Self {
+            gens,
+            discs,
             opt_g: adam(),
             opt_d: adam(),
             pool_t: ImagePool::new(cfg.pool),

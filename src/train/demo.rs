@@ -206,79 +206,98 @@ pub fn run(quick: bool, out: &Path) -> anyhow::Result<Table> {
         .trajectories
         .retain(|t| split.trains_on(&t.indenter));
 
-    eprintln!("[2/4] translating source → target style (CycleGAN)");
-    let t1 = std::time::Instant::now();
-    let translated = super::cyclegan::translate(
-        &source,
-        &target_seen,
-        &plan.translate,
-        &out.join("translate"),
-        progress,
-    )?;
-    eprintln!(
-        "      {} iterations in {:.0} s, cycle loss {:.3}",
-        translated.info.iterations,
-        t1.elapsed().as_secs_f64(),
-        translated.info.last.cycle
-    );
+    // Two trainings at a time, on the cores one leaves idle (a small network does not keep
+    // two cores busy): the source-only baselines need no translation and train beside the
+    // translator; TransForce trains beside its no-LSTM control. Each network's initial
+    // weights still come from its seed alone (`force::build_networks`).
     let mut table = Table {
         rows: Vec::new(),
         fid: Vec::new(),
     };
-    table.fid.extend(eval::fid_rows(
-        "I_s–I_t",
-        &data::load_unlabelled(&src_dir, &rgbm, false)?,
-        &target_images,
-        &split,
-    ));
-    table.fid.extend(eval::fid_rows(
-        "Î_t–I_t",
-        &translated.set.images(),
-        &target_images,
-        &split,
-    ));
+    let models = std::thread::scope(|s| -> anyhow::Result<Vec<(String, PathBuf)>> {
+        let baselines = s.spawn(|| -> anyhow::Result<Vec<(String, PathBuf)>> {
+            let mut models = Vec::new();
+            for &m in &plan.modalities {
+                let spec = ImageSpec {
+                    modality: m,
+                    ..rgbm
+                };
+                let src = data::load_labelled(&src_dir, &spec, false)?.seen_only(&split);
+                let dir = out.join(format!("models/source-only-{}", eval::slug(m.name())));
+                train_force(&src, &plan.force, "source-only", m, &dir)?;
+                models.push(("source-only".to_owned(), dir));
+            }
+            Ok(models)
+        });
 
-    eprintln!("[3/4] training force models");
-    let translated_dir = out.join("translate/translated");
-    let mut models: Vec<(String, PathBuf)> = Vec::new();
-    for &m in &plan.modalities {
-        let spec = ImageSpec {
-            modality: m,
-            ..rgbm
-        };
-        let tr = data::load_labelled(&translated_dir, &spec, progress)?;
-        for (lstm, name) in [(true, "TransForce"), (false, "TransForce (no LSTM)")] {
-            let dir = out.join(format!(
-                "models/{}-{}",
-                eval::slug(name),
-                eval::slug(m.name())
-            ));
-            let cfg = ForceConfig {
-                lstm,
-                ..plan.force.clone()
-            };
-            let t2 = std::time::Instant::now();
-            let r = force::train(&tr, &cfg, name, &dir, false, progress)?;
-            eprintln!(
-                "      {name} {}: loss {:.4}, {:.0} s",
-                m.paper_name(),
-                r.last_loss,
-                t2.elapsed().as_secs_f64()
-            );
-            models.push((name.into(), dir));
-        }
-        let src = data::load_labelled(&src_dir, &spec, progress)?.seen_only(&split);
-        let dir = out.join(format!("models/source-only-{}", eval::slug(m.name())));
-        let t2 = std::time::Instant::now();
-        let r = force::train(&src, &plan.force, "source-only", &dir, false, progress)?;
         eprintln!(
-            "      source-only {}: loss {:.4}, {:.0} s",
-            m.paper_name(),
-            r.last_loss,
-            t2.elapsed().as_secs_f64()
+            "[2/4] translating source → target style (CycleGAN), training source-only beside it"
         );
-        models.push(("source-only".into(), dir));
-    }
+        let t1 = std::time::Instant::now();
+        let translated = super::cyclegan::translate(
+            &source,
+            &target_seen,
+            &plan.translate,
+            &out.join("translate"),
+            progress,
+        )?;
+        eprintln!(
+            "      {} iterations in {:.0} s, cycle loss {:.3}",
+            translated.info.iterations,
+            t1.elapsed().as_secs_f64(),
+            translated.info.last.cycle
+        );
+        table.fid.extend(eval::fid_rows(
+            "I_s–I_t",
+            &data::load_unlabelled(&src_dir, &rgbm, false)?,
+            &target_images,
+            &split,
+        ));
+        table.fid.extend(eval::fid_rows(
+            "Î_t–I_t",
+            &translated.set.images(),
+            &target_images,
+            &split,
+        ));
+
+        eprintln!("[3/4] training force models on the translated images");
+        let translated_dir = out.join("translate/translated");
+        let mut models = Vec::new();
+        for &m in &plan.modalities {
+            let spec = ImageSpec {
+                modality: m,
+                ..rgbm
+            };
+            let tr = data::load_labelled(&translated_dir, &spec, progress)?;
+            let [with, without] =
+                [(true, "TransForce"), (false, "TransForce (no LSTM)")].map(|(lstm, name)| {
+                    let dir = out.join(format!(
+                        "models/{}-{}",
+                        eval::slug(name),
+                        eval::slug(m.name())
+                    ));
+                    let cfg = ForceConfig {
+                        lstm,
+                        ..plan.force.clone()
+                    };
+                    (name, cfg, dir)
+                });
+            std::thread::scope(|pair| -> anyhow::Result<()> {
+                let control = pair.spawn(|| train_force(&tr, &without.1, without.0, m, &without.2));
+                train_force(&tr, &with.1, with.0, m, &with.2)?;
+                control
+                    .join()
+                    .map_err(|_| anyhow::anyhow!("training {} panicked", without.0))?
+            })?;
+            models.push((with.0.to_owned(), with.2));
+            models.push((without.0.to_owned(), without.2));
+        }
+        let baselines = baselines
+            .join()
+            .map_err(|_| anyhow::anyhow!("training source-only panicked"))??;
+        models.extend(baselines);
+        Ok(models)
+    })?;
 
     eprintln!("[4/4] evaluating on the target sensor");
     for (_, dir) in &models {
@@ -293,6 +312,26 @@ pub fn run(quick: bool, out: &Path) -> anyhow::Result<Table> {
     table.write(&out.join("results"))?;
     eprintln!("      total {:.0} s", t0.elapsed().as_secs_f64());
     Ok(table)
+}
+
+/// Trains one force model into `dir` and says how it went (no progress bar: trainings run side
+/// by side).
+fn train_force(
+    set: &data::LabelledSet,
+    cfg: &ForceConfig,
+    name: &str,
+    m: Modality,
+    dir: &Path,
+) -> anyhow::Result<()> {
+    let t = std::time::Instant::now();
+    let r = force::train(set, cfg, name, dir, false, false)?;
+    eprintln!(
+        "      {name} {}: loss {:.4}, {:.0} s",
+        m.paper_name(),
+        r.last_loss,
+        t.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 /// Does TransForce (LSTM) beat source-only on MAE on every axis, per modality and group?

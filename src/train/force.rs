@@ -169,6 +169,20 @@ pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
     }
 }
 
+/// Builds networks under one process-wide lock, seeding the device's generator first when a
+/// seed is given. burn keeps one random generator per device for the whole process and draws
+/// from it when a network is built (training itself draws nothing from it): built this way, a
+/// network's initial weights depend on its seed alone even while other trainings run in other
+/// threads (`rig demo` trains several side by side).
+pub fn build_networks<T>(dev: &Device, seed: Option<u64>, build: impl FnOnce() -> T) -> T {
+    static BUILD: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _g = BUILD.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some(seed) = seed {
+        dev.seed(seed);
+    }
+    build()
+}
+
 /// The device the trainer computes on: CUDA with the `gpu` feature, else the flex CPU backend.
 pub fn device() -> Device {
     #[cfg(feature = "gpu")]
@@ -251,10 +265,12 @@ pub fn train(
     }
     fs::create_dir_all(out)?;
     let dev = device();
-    dev.seed(cfg.seed);
-    let adev = dev.clone().autodiff();
     let shape = shape_for(cfg, &spec);
-    let mut net = ForceNet::new(&shape, &adev);
+    let (adev, mut net) = build_networks(&dev, Some(cfg.seed), || {
+        let adev = dev.clone().autodiff();
+        let net = ForceNet::new(&shape, &adev);
+        (adev, net)
+    });
     let mut optim: ModuleOptimizer = match cfg.optimizer {
         Optimizer::Adam => AdamConfig::new().init(),
         Optimizer::Sgd => SgdConfig::new().init(),
@@ -434,7 +450,9 @@ impl ForceModel {
     pub fn load(dir: &Path) -> anyhow::Result<Self> {
         let info = read_info(dir)?;
         let dev = device();
-        let mut net = ForceNet::new(&info.shape, &dev);
+        // The initial weights are overwritten, but building them draws from the shared
+        // generator: under the lock, so a training seeding it in another thread is undisturbed.
+        let mut net = build_networks(&dev, None, || ForceNet::new(&info.shape, &dev));
         net.load_from(&mut SafetensorsStore::from_file(dir.join(WEIGHTS)))
             .map_err(|e| anyhow::anyhow!("cannot load {}: {e:?}", dir.join(WEIGHTS).display()))?;
         Ok(Self { info, net, dev })
