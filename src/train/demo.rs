@@ -4,7 +4,8 @@
 //!    with other LEDs and markers) for a few seen and unseen indenters.
 //! 2. Translate the source images into the target's style (CycleGAN).
 //! 3. Train the force model on the translated sequences with the source forces (TransForce), its
-//!    no-LSTM control, and the source-only baseline (trained on the raw source images).
+//!    no-LSTM control, and the source-only baseline (trained on the raw source images). Two
+//!    train at a time: source-only beside the translator, TransForce beside its control.
 //! 4. Evaluate all of them on the target sensor and print the paper-shaped table.
 //!
 //! Re-running with the same `--out` reuses the recorded data (`rig run --resume`) and retrains.
@@ -27,7 +28,7 @@ use super::report::{Row, Table};
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// A small version (what CI runs; about 15 minutes in a release build on 2 cores): fewer
+    /// A small version (what CI runs; about 10 minutes on 2 cores): fewer
     /// indenters and trajectories, smaller images and networks, R+M only.
     #[arg(long)]
     pub quick: bool,
