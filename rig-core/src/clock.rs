@@ -84,7 +84,7 @@ struct PacerSlot {
 pub struct HoldStats {
     /// Episodes of holding (a hold starts when the clock first reaches a pacer's limit).
     pub holds: u64,
-    /// Real time spent holding, summed over the episodes that have ended.
+    /// Real time spent holding, summed over the episodes (the one under way included).
     pub held_s: f64,
     /// The pacer that started the most recent hold.
     pub last_holder: Option<&'static str>,
