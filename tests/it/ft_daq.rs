@@ -2,6 +2,7 @@
 //! path (temperature compensation, F = M·(V − bias), tool transform) end to end.
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use hardware_mocks::nano17::daq::{DaqMock, DaqMockConfig};
@@ -14,17 +15,21 @@ use rig_core::ft::transform::ToolTransform;
 use rig_core::ft::{NANO17_SI_25_RESOLUTION, SampleFlags};
 use rig_core::wrench::Wrench;
 
-fn truth(t_ns: u64) -> [f64; 6] {
-    if t_ns < 700_000_000 {
+/// No load until `from_ns` (set once the tare is done), then a different load every 500 ms.
+fn truth(t_ns: u64, from_ns: u64) -> [f64; 6] {
+    if t_ns < from_ns {
         return [0.0; 6];
     }
     let k = (t_ns / 500_000_000) as f64;
     [0.5 * k, -0.3 * k, -2.0 - k, 3.0 * k, -2.0 * k, 1.0]
 }
 
-fn near_step(t_ns: u64) -> bool {
+/// Whether a sample measured at `t_ns` is within 2 ms of a load change. Samples are compared
+/// at the instant the simulated sensor measured them (from their sequence number), so only
+/// the rounding of that mapping needs a guard, not the host's reading delay.
+fn near_step(t_ns: u64, from_ns: u64) -> bool {
     let ms = (t_ns / 1_000_000) % 500;
-    !(40..=495).contains(&ms)
+    !(2..=498).contains(&ms) || t_ns.abs_diff(from_ns) < 2_000_000
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -40,10 +45,13 @@ async fn ft_daq_gauge_stream_converts_with_the_cal_file_and_counts_faults() {
         ToolTransform::from_angles([0.0, 0.0, -12.0], [0.0, 0.0, 30f64.to_radians()]).unwrap();
     let mut model = SensorModel::nano17(4);
     model.tool = tool.clone();
+    // The load starts only after the tare, however long a busy host takes to get there.
+    let load_from = Arc::new(AtomicU64::new(u64::MAX));
+    let from = load_from.clone();
     let mock = DaqMock::start(
         DaqMockConfig::default(),
         model,
-        Arc::new(|t| Wrench::from_array(truth(t))),
+        Arc::new(move |t| Wrench::from_array(truth(t, from.load(Ordering::Acquire)))),
         clock.clone(),
     )
     .unwrap();
@@ -68,17 +76,20 @@ async fn ft_daq_gauge_stream_converts_with_the_cal_file_and_counts_faults() {
     let tare = stream.tare(400).await.unwrap();
     // The bias is in gauge volts: the simulated offsets (plus noise).
     assert!((tare.raw.mean[2] - 0.2044).abs() < 0.01, "{tare:?}");
+    let from_ns = (clock.now_ns() / 500_000_000 + 1) * 500_000_000;
+    load_from.store(from_ns, Ordering::Release);
     let mut max_err = [0.0f64; 6];
     let mut compared = 0;
-    while clock.now_ns() < 2_700_000_000 {
+    while clock.now_ns() < from_ns + 2_000_000_000 {
         let Ok(Some(s)) = clock.timeout(Duration::from_secs(1), stream.next()).await else {
             panic!("stalled {:?}", stream.error());
         };
-        if s.t_host_ns < 750_000_000 || near_step(s.t_host_ns) {
+        let t_ns = mock.stats().sample_time_ns(s.device_seq, 1000.0);
+        if t_ns < from_ns || near_step(t_ns, from_ns) {
             continue;
         }
         assert!(s.flags.is_clean(), "{}", s.flags);
-        let t = truth(s.t_host_ns);
+        let t = truth(t_ns, from_ns);
         for (i, v) in s.wrench.to_array().iter().enumerate() {
             max_err[i] = max_err[i].max((v - t[i]).abs());
         }

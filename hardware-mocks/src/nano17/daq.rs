@@ -90,6 +90,7 @@ async fn run(
     mut stop: oneshot::Receiver<()>,
 ) {
     let t0 = clock.now_ns();
+    stats.stream_start_ns.store(t0, Ordering::Release);
     let mut k: u64 = 0;
     let mut out = Vec::new();
     loop {

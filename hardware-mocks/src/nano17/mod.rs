@@ -330,11 +330,21 @@ pub struct MockStats {
     pub garbage_bytes: AtomicU64,
     /// Commands received (serial) or requests (Net F/T).
     pub commands: AtomicU64,
+    /// Clock time (ns) of sample 0 of the current stream (DAQ: since start; serial: since the
+    /// last `QS`). With it a test maps a record's sequence number to the instant the simulated
+    /// sensor measured it, which does not depend on when the host got round to reading it.
+    pub stream_start_ns: AtomicU64,
 }
 
 impl MockStats {
     pub fn get(v: &AtomicU64) -> u64 {
         v.load(Ordering::Acquire)
+    }
+
+    /// The instant (clock ns) the simulated sensor measured sample `seq` of the current stream
+    /// at `rate_hz`: the truth a front end's output for that sample is compared with.
+    pub fn sample_time_ns(&self, seq: u64, rate_hz: f64) -> u64 {
+        sample_time_ns(Self::get(&self.stream_start_ns), seq, rate_hz)
     }
 }
 

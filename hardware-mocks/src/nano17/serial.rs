@@ -232,7 +232,9 @@ async fn run(
                                 out.push(b'>');
                             }
                             Some(Command::QueryStream) => {
-                                stream = Some((clock.now_ns(), 0));
+                                let t0 = clock.now_ns();
+                                c.stats.stream_start_ns.store(t0, Ordering::Release);
+                                stream = Some((t0, 0));
                             }
                             None => out.extend_from_slice(b"Error\r\n>"),
                         }
