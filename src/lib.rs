@@ -9,7 +9,6 @@
 //! Pure, shared parts (clock, pose maths, RTDE codec, config, indenters) live in `rig-core`;
 //! the simulated hardware lives in `hardware-mocks`.
 
-pub mod bench;
 pub mod camera;
 pub mod cli;
 pub mod dataset;
@@ -19,6 +18,5 @@ pub mod plan;
 pub mod record;
 pub mod robot;
 pub mod run;
-pub mod simcli;
 pub mod sync;
 pub mod train;

@@ -23,7 +23,6 @@
 //! packets are counted in [`FtStats`]; an unplugged port ends the stream with
 //! [`FtError::PortClosed`], reported by [`FtStream::finish`].
 
-pub mod cli;
 pub mod daq;
 pub mod netft;
 pub mod serial;

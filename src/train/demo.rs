@@ -14,7 +14,6 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use clap::Args;
 use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
 
@@ -25,17 +24,6 @@ use super::force::{self, ForceConfig};
 use super::modality::Modality;
 use super::nn::{Depth, GanShape};
 use super::report::{Row, Table};
-
-#[derive(Debug, Args)]
-pub struct DemoArgs {
-    /// A small version (what CI runs; about 10 minutes on 2 cores): fewer
-    /// indenters and trajectories, smaller images and networks, R+M only.
-    #[arg(long)]
-    pub quick: bool,
-    /// Where the data, models and results go.
-    #[arg(long, default_value = "runs/demo")]
-    pub out: PathBuf,
-}
 
 /// The demo's scale.
 #[derive(Debug, Clone)]
@@ -351,27 +339,4 @@ pub fn beats_source_only(rows: &[Row]) -> Vec<(String, String, [bool; 3])> {
         }
     }
     out
-}
-
-pub fn demo_command(args: &DemoArgs) -> anyhow::Result<()> {
-    let table = run(args.quick, &args.out)?;
-    println!("{}", table.markdown());
-    for (modality, group, wins) in beats_source_only(&table.rows) {
-        let axes: Vec<&str> = ["Fx", "Fy", "Fz"]
-            .iter()
-            .zip(wins)
-            .map(|(a, w)| if w { *a } else { "-" })
-            .collect();
-        println!(
-            "TransForce beats source-only ({modality}, {group}): {} [{}]",
-            if wins.iter().all(|w| *w) {
-                "yes, on every axis"
-            } else {
-                "NOT on every axis"
-            },
-            axes.join(" ")
-        );
-    }
-    println!("results in {}", args.out.join("results").display());
-    Ok(())
 }

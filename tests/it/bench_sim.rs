@@ -1,6 +1,6 @@
 //! `rig bench sim --quick`: measures every model, writes the table, the SVG plot and the CSV.
 
-use rig::bench::sim::{SimBenchArgs, measure, run, table};
+use rig::cli::bench::sim::{SimBenchArgs, measure, run, table};
 
 #[test]
 fn quick_sim_bench_measures_every_model_and_writes_a_plot() {

@@ -2,7 +2,7 @@
 //! paired force accurate, and interpolation beats the nearest sample. (Errors only; the timings
 //! are for `rig bench sync` to report, not for a test to assert.)
 
-use rig::bench::sync::{Scenario, run_variant};
+use rig::cli::bench::sync::{Scenario, run_variant};
 use rig::sync::InterpMethod;
 
 #[test]

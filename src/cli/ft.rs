@@ -187,7 +187,7 @@ enum Mode {
 }
 
 fn live(a: &LiveArgs, mode: Mode) -> anyhow::Result<()> {
-    let loaded = crate::cli::resolve_config(a.config.as_deref())?;
+    let loaded = super::config::resolve_config(a.config.as_deref())?;
     let config: &RigConfig = &loaded.config;
     let Some(ft) = config.force_sensor.clone() else {
         bail!("{} has no [force_sensor] section", loaded.source);
@@ -199,7 +199,7 @@ fn live(a: &LiveArgs, mode: Mode) -> anyhow::Result<()> {
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async move {
         let clock = Clock::system();
-        let mut stream = super::open(&ft, clock.clone())
+        let mut stream = crate::force::open(&ft, clock.clone())
             .await
             .with_context(|| format!("opening the F/T sensor of {}", loaded.source))?;
         eprintln!(
@@ -306,7 +306,7 @@ fn live(a: &LiveArgs, mode: Mode) -> anyhow::Result<()> {
     })
 }
 
-fn print_tare(t: &super::TareReport, json: bool) -> anyhow::Result<()> {
+fn print_tare(t: &crate::force::TareReport, json: bool) -> anyhow::Result<()> {
     if json {
         println!(
             "{}",
@@ -328,7 +328,7 @@ fn print_tare(t: &super::TareReport, json: bool) -> anyhow::Result<()> {
 fn print_line(
     rate: f64,
     e: &rig_core::ft::bias::BiasEstimate,
-    st: &super::FtStatsSnapshot,
+    st: &crate::force::FtStatsSnapshot,
     json: bool,
 ) -> anyhow::Result<()> {
     if json {

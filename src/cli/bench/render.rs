@@ -83,7 +83,7 @@ pub fn effect_sets() -> Vec<(&'static str, ImageEffects)> {
 pub fn measure(min_time_s: f64) -> anyhow::Result<Vec<RenderResult>> {
     let config = RigConfig::sim_source();
     let optics = config.optics.clone().unwrap_or_default();
-    let mut scene = crate::simcli::render_scene(
+    let mut scene = crate::cli::sim::render_scene(
         &config,
         Indenter::builtin("sphere")?,
         [0.0, 0.0],

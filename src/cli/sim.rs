@@ -132,7 +132,7 @@ fn simulate_checked(scene: &Scene) -> anyhow::Result<SimOutput> {
 }
 
 fn render_command(args: &RenderArgs) -> anyhow::Result<()> {
-    let loaded = crate::cli::resolve_config(args.config.as_deref())?;
+    let loaded = super::config::resolve_config(args.config.as_deref())?;
     let indenter = Indenter::load(&args.indenter)?;
     let [dist, angle] = pair(&args.shear, "--shear")?;
     let at = pair(&args.at, "--at")?;
@@ -188,7 +188,7 @@ fn save_png(image: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
 }
 
 fn contact_sheet_command(args: &ContactSheetArgs) -> anyhow::Result<()> {
-    let loaded = crate::cli::resolve_config(args.config.as_deref())?;
+    let loaded = super::config::resolve_config(args.config.as_deref())?;
     let names = Indenter::list_builtin();
     let mut tiles = Vec::with_capacity(names.len());
     for name in names {

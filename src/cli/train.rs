@@ -1,0 +1,232 @@
+//! `rig train translate|force` and `rig eval`: the trainer's command line. The training itself
+//! is [`crate::train`].
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use clap::{Args, Subcommand};
+
+use crate::train::modality::Modality;
+use crate::train::nn::Depth;
+use crate::train::{TrainerConfig, cyclegan, data, eval, force, report};
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    #[command(subcommand)]
+    pub command: TrainCommand,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum TrainCommand {
+    /// CycleGAN: translate the source sensor's images into the target sensor's style.
+    Translate(TranslateArgs),
+    /// Train the force model (encoder + LSTM) on labelled (translated or source) sequences.
+    Force(ForceArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct Common {
+    /// Trainer settings (TOML with [data], [translate], [force]); paper defaults otherwise.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Network input size, WIDTHxHEIGHT (multiples of 4).
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
+    #[arg(long)]
+    pub seed: Option<u64>,
+    #[arg(long)]
+    pub epochs: Option<usize>,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or("expected WIDTHxHEIGHT, e.g. 64x48")?;
+    let w: u32 = w.trim().parse().map_err(|_| format!("bad width {w:?}"))?;
+    let h: u32 = h.trim().parse().map_err(|_| format!("bad height {h:?}"))?;
+    if w < 8 || h < 8 || !w.is_multiple_of(4) || !h.is_multiple_of(4) {
+        return Err(format!(
+            "{w}x{h}: width and height must be multiples of 4, at least 8"
+        ));
+    }
+    Ok((w, h))
+}
+
+impl Common {
+    fn config(&self) -> anyhow::Result<TrainerConfig> {
+        let mut c = TrainerConfig::load(self.config.as_deref())?;
+        if let Some((w, h)) = self.size {
+            c.data.width = w;
+            c.data.height = h;
+        }
+        if let Some(s) = self.seed {
+            c.translate.seed = s;
+            c.force.seed = s;
+        }
+        if let Some(e) = self.epochs {
+            c.translate.epochs = e;
+            c.force.epochs = e;
+        }
+        Ok(c)
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct TranslateArgs {
+    /// The labelled source-sensor dataset (a `rig run` output, or a directory of them).
+    #[arg(long)]
+    pub source: PathBuf,
+    /// The target sensor's dataset (only its images are read).
+    #[arg(long)]
+    pub target: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Iterations per epoch (default: one pass over the larger image set).
+    #[arg(long)]
+    pub steps_per_epoch: Option<usize>,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct ForceArgs {
+    /// Labelled data: the translated dataset (`<translate out>/translated`) or a source dataset
+    /// (the source-only baseline).
+    #[arg(long)]
+    pub data: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The control group: the encoder's embedding straight into the MLP.
+    #[arg(long)]
+    pub no_lstm: bool,
+    #[arg(long, default_value = "rgb+marker")]
+    pub modality: Modality,
+    /// ResNet depth of the encoder: 18, 34 or 50.
+    #[arg(long)]
+    pub depth: Option<Depth>,
+    /// Name in result tables (default: from the data and --no-lstm).
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Continue from the checkpoint in --out.
+    #[arg(long)]
+    pub resume: bool,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Model directories (`rig train force --out`); several give one table.
+    #[arg(long, required = true, num_args = 1..)]
+    pub model: Vec<PathBuf>,
+    /// Target-sensor dataset with forces.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Where results.md/.csv/.json and the plots go (default: the first model's eval/).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+}
+
+pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
+    let progress = std::io::stderr().is_terminal();
+    match &args.command {
+        TrainCommand::Translate(a) => {
+            let mut cfg = a.common.config()?;
+            if a.steps_per_epoch.is_some() {
+                cfg.translate.steps_per_epoch = a.steps_per_epoch;
+            }
+            let spec = cfg.spec(Modality::RgbMarker);
+            let source =
+                data::load_labelled(&a.source, &spec, progress)?.seen_only(&cfg.data.split);
+            let target = data::load_unlabelled(&a.target, &spec, progress)?;
+            let t = cyclegan::translate(&source, &target, &cfg.translate, &a.out, progress)?;
+            let mut table = report::Table {
+                rows: Vec::new(),
+                fid: Vec::new(),
+            };
+            table.fid.extend(eval::fid_rows(
+                "I_s–I_t",
+                &source.images(),
+                &target,
+                &cfg.data.split,
+            ));
+            table.fid.extend(eval::fid_rows(
+                "Î_t–I_t",
+                &t.set.images(),
+                &target,
+                &cfg.data.split,
+            ));
+            table.write(&a.out)?;
+            println!(
+                "translated {} source trajectories into {} (cycle loss {:.3} after {} iterations); samples in {}",
+                t.set.trajectories.len(),
+                a.out.join("translated").display(),
+                t.info.last.cycle,
+                t.info.iterations,
+                a.out.join("samples").display()
+            );
+            print!("{}", table.markdown());
+            Ok(())
+        }
+        TrainCommand::Force(a) => {
+            let mut cfg = a.common.config()?;
+            if a.no_lstm {
+                cfg.force.lstm = false;
+            }
+            if let Some(d) = a.depth {
+                cfg.force.depth = d;
+            }
+            let spec = cfg.spec(a.modality);
+            let set = data::load_labelled(&a.data, &spec, progress)?.seen_only(&cfg.data.split);
+            let method = a.method.clone().unwrap_or_else(|| {
+                let base = match data::role_of(&a.data).as_deref() {
+                    Ok("translated") => "TransForce",
+                    _ => "source-only",
+                };
+                if a.no_lstm {
+                    format!("{base} (no LSTM)")
+                } else {
+                    base.to_string()
+                }
+            });
+            let r = force::train(&set, &cfg.force, &method, &a.out, a.resume, progress)?;
+            println!(
+                "{method}: {} epochs, loss {:.4}, {:.1} sequences/s ({:.0} images/s); model in {}",
+                r.epochs_done,
+                r.last_loss,
+                r.sequences_per_s,
+                r.images_per_s,
+                a.out.display()
+            );
+            Ok(())
+        }
+    }
+}
+
+pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
+    let progress = std::io::stderr().is_terminal();
+    let cfg = TrainerConfig::load(args.config.as_deref())?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| args.model[0].join("eval"));
+    let mut table = report::Table {
+        rows: Vec::new(),
+        fid: Vec::new(),
+    };
+    for m in &args.model {
+        table.rows.extend(eval::evaluate(
+            m,
+            &args.data,
+            &out,
+            &cfg.data.split,
+            progress,
+        )?);
+    }
+    table.write(&out)?;
+    print!("{}", table.markdown());
+    println!("results in {}", out.display());
+    Ok(())
+}
