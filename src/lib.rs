@@ -12,11 +12,13 @@
 pub mod camera;
 pub mod cli;
 pub mod dataset;
+pub mod durable;
 pub mod force;
 pub mod live;
 pub mod plan;
 pub mod record;
 pub mod robot;
 pub mod run;
+pub mod simrig;
 pub mod sync;
 pub mod train;

@@ -13,7 +13,7 @@ fn main() -> ExitCode {
     // rig at `info`, the simulated devices' own chatter (connections, program starts) only from
     // `warn` (RUST_LOG=info shows it).
     let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new("info,hardware_mocks=warn"));
+        .unwrap_or_else(|_| EnvFilter::new(format!("info,{}", rig::simrig::QUIET_DEVICES_LOG)));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

@@ -5,14 +5,15 @@
 //!   drop detection from sequence gaps, the dedicated reading thread — are written over a small
 //!   [`v4l2::DeviceLayer`] trait and tested against a fake; the real layer (the `v4l` crate)
 //!   is behind the cargo feature `v4l`.
-//! - [`sim`]: the simulated GelSight camera of `hardware-mocks`, which renders the contact
-//!   scene at its frame rate on the shared clock.
+//!
+//! The simulated GelSight camera implements the same trait in `crate::simrig`; what only a
+//! simulator knows (the true capture time and wrench) travels with its frames in
+//! [`Frame::truth`], never through the trait.
 //!
 //! Every frame carries the device's timestamp and sequence number, the host time it was
 //! received, and the number of frames lost just before it, so the sync stage can pair it with
 //! force samples and the recorder can report drops.
 
-pub mod sim;
 pub mod v4l2;
 
 use std::future::Future;
@@ -78,6 +79,18 @@ pub struct Frame {
     pub format: FrameFormat,
     /// Pixel data in `format.pixel`.
     pub data: Vec<u8>,
+    /// Simulated cameras only: the ground truth of this frame. Real cameras: `None`.
+    pub truth: Option<FrameTruth>,
+}
+
+/// What a simulated camera knows of a frame that a real one cannot: when it was really
+/// captured and the true contact wrench then, the truth a recording is checked against.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameTruth {
+    /// True capture time, rig clock ns.
+    pub capture_t_ns: u64,
+    /// The true wrench on the gel at `capture_t_ns` (N, N·mm), when known.
+    pub wrench: rig_core::wrench::Wrench,
 }
 
 impl Frame {
@@ -182,12 +195,6 @@ pub trait FrameSource: Send {
     fn next_frame(&mut self) -> FrameFuture<'_>;
     /// Frames delivered and lost so far.
     fn stats(&self) -> CaptureStats;
-    /// Simulated sources only: the true capture time (shared clock, ns) of the frame the last
-    /// [`next_frame`](Self::next_frame) returned, the ground truth a recording is checked
-    /// against. Real cameras have none.
-    fn true_capture_ns(&self) -> Option<u64> {
-        None
-    }
 }
 
 /// Counts lost frames from device sequence numbers (V4L2 `sequence` is a `u32` that wraps).
@@ -287,6 +294,7 @@ mod tests {
                 fps: 30.0,
             },
             data,
+            truth: None,
         }
     }
 

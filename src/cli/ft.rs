@@ -18,7 +18,7 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use clap::{Args, Subcommand};
 use rig_core::clock::Clock;
-use rig_core::config::RigConfig;
+use rig_core::config::{ForceSensorKind, RigConfig};
 use rig_core::ft::AXES;
 use rig_core::ft::bias::BiasEstimator;
 use rig_core::ft::cal::Calibration;
@@ -199,9 +199,16 @@ fn live(a: &LiveArgs, mode: Mode) -> anyhow::Result<()> {
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async move {
         let clock = Clock::system();
-        let mut stream = crate::force::open(&ft, clock.clone())
-            .await
-            .with_context(|| format!("opening the F/T sensor of {}", loaded.source))?;
+        let opened = if ft.kind == ForceSensorKind::Sim {
+            match crate::force::FrontEndSettings::from_config(&ft) {
+                Ok(settings) => crate::simrig::open_ft(settings, clock.clone()).await,
+                Err(e) => Err(e),
+            }
+        } else {
+            crate::force::open(&ft, clock.clone()).await
+        };
+        let mut stream =
+            opened.with_context(|| format!("opening the F/T sensor of {}", loaded.source))?;
         eprintln!(
             "reading {} (keep the sensor unloaded for the tare)",
             stream.description

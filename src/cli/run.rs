@@ -41,7 +41,7 @@ pub struct RunArgs {
     /// KIND@TRAJECTORY/STAGE[+MS], KIND one of protective-stop, rtde-drop, ft-unplug,
     /// camera-stall; MS is clock time after the stage starts. Repeatable.
     #[arg(long, value_name = "FAULT")]
-    pub sim_fault: Vec<crate::run::SimFault>,
+    pub sim_fault: Vec<crate::simrig::SimFault>,
     /// Serve a live view for the Foxglove app (Foxglove WebSocket) on this loopback address
     /// while the run records (default 127.0.0.1:8765).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
@@ -86,8 +86,8 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         resume: args.resume,
         sim_faults: args.sim_fault.clone(),
         sim_ft: match args.sim_ft {
-            SimFt::Netft => hardware_mocks::rig_sim::SimFtFrontEnd::NetFt,
-            SimFt::Serial => hardware_mocks::rig_sim::SimFtFrontEnd::Serial,
+            SimFt::Netft => crate::simrig::SimFtFrontEnd::NetFt,
+            SimFt::Serial => crate::simrig::SimFtFrontEnd::Serial,
         },
         ..crate::run::RunOptions::new(out.clone())
     };

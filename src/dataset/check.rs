@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::record::file::{partial_id, read_file};
 use crate::record::manifest::{Counts, Manifest, Status};
+use crate::record::reader::read_file;
+use crate::record::writer::partial_id;
 use crate::sync::SeqGap;
 
 use super::nearest_rank;

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use rig_core::wrench::Wrench;
 use serde::Serialize;
 
-use crate::record::file::PairedRead;
+use crate::record::reader::{PairedRead, TruthRead};
 
 use super::{AXES, NANO17_SI_25_025_MAX_LOADS, REPORTED_ERROR_PCT, nearest_rank};
 
@@ -173,7 +173,7 @@ impl TruthComparison {
 pub(super) fn compare_truth(
     id: &str,
     paired: &[PairedRead],
-    truth: &[crate::record::file::TruthRead],
+    truth: &[TruthRead],
     range: &FullRange,
 ) -> (Option<TruthComparison>, Vec<FrameError>) {
     if truth.is_empty() {

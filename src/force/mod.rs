@@ -655,8 +655,8 @@ impl FrontEndSettings {
     }
 }
 
-/// Opens the front end a `[force_sensor]` section describes and starts streaming. `kind =
-/// "sim"` starts the simulated Nano17 (a Net F/T on loopback) in-process, with no load.
+/// Opens the lab front end a `[force_sensor]` section describes and starts streaming. `kind =
+/// "sim"` is refused: the simulated Nano17 is started by `crate::simrig::open_ft`.
 pub async fn open(cfg: &ForceSensorConfig, clock: Clock) -> Result<FtStream, FtError> {
     let settings = FrontEndSettings::from_config(cfg)?;
     match cfg.kind {
@@ -691,42 +691,10 @@ pub async fn open(cfg: &ForceSensorConfig, clock: Clock) -> Result<FtStream, FtE
                 .ok_or_else(|| FtError::Config("force_sensor.address is required".into()))?;
             netft::open(&addr, false, settings, clock).await
         }
-        ForceSensorKind::Sim => {
-            let source: hardware_mocks::truth::SharedWrenchSource =
-                Arc::new(hardware_mocks::truth::ConstantWrench(Wrench::ZERO));
-            open_sim(source, settings, clock).await
-        }
+        ForceSensorKind::Sim => Err(FtError::Config(
+            "force_sensor.kind = \"sim\" is the simulated rig's sensor, not a lab front end: \
+             open it through crate::simrig::open_ft (as `rig ft` does)"
+                .into(),
+        )),
     }
-}
-
-/// The simulated Nano17 (a Net F/T mock on loopback) driven by `source`, read by the real
-/// Net F/T reader.
-pub async fn open_sim(
-    source: hardware_mocks::truth::SharedWrenchSource,
-    settings: FrontEndSettings,
-    clock: Clock,
-) -> Result<FtStream, FtError> {
-    use hardware_mocks::nano17::{SensorModel, netft::NetFtMock, netft::NetFtMockConfig};
-    let mut model = SensorModel::nano17(0x5eed);
-    model.tool = settings.tool.clone();
-    let mock = NetFtMock::start(
-        NetFtMockConfig {
-            rate_hz: settings.rate_hz,
-            counts_per_force: settings.counts_per_force,
-            counts_per_torque: settings.counts_per_torque,
-            ..NetFtMockConfig::default()
-        },
-        model,
-        source,
-        clock.clone(),
-    )
-    .await
-    .map_err(|e| FtError::Io {
-        device: "simulated Net F/T".into(),
-        reason: e.to_string(),
-    })?;
-    let mut stream = netft::open(&mock.addr().to_string(), false, settings, clock).await?;
-    stream.description = format!("simulated Nano17 (Net F/T on {})", mock.addr());
-    stream.keep_alive(Box::new(mock));
-    Ok(stream)
 }

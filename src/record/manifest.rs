@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use super::channels::{
     TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_TRUTH, TOPIC_WRENCH,
 };
-use super::file::write_atomic;
+use crate::durable::write_atomic;
 
 /// File name of the manifest in an output directory.
 pub const MANIFEST_NAME: &str = "manifest.json";

@@ -1,11 +1,14 @@
 //! Recording: one MCAP file per trajectory, a run manifest, resume, and a bounded writer.
 //!
-//! - [`channels`]: the five channels (frames, wrench, TCP pose, paired wrench, stage labels),
-//!   their JSON schemas and message bodies ([`Record`]).
-//! - [`file`]: [`TrajectoryWriter`] writes `.<id>.mcap.partial`, then fsyncs and renames it to
-//!   `<id>.mcap` when the trajectory completes; [`read_file`] reads one back completely.
+//! - [`channels`]: the six channels (frames, wrench, TCP pose, paired wrench, stage labels and,
+//!   on the simulated rig, the true wrench), their JSON schemas and message bodies ([`Record`]).
+//! - [`png`]: the lossless frame encoding of the recordings.
+//! - [`writer`]: [`TrajectoryWriter`] writes `.<id>.mcap.partial`, then fsyncs and renames it to
+//!   `<id>.mcap` when the trajectory completes.
+//! - [`reader`]: the one reader of trajectory files ([`read_file`], [`reader::messages`]), for
+//!   `rig dataset check`, `--resume` and the trainer.
 //! - [`manifest`]: `manifest.json` (config, calibration, indenter, sensor, software version and
-//!   every trajectory's status), written atomically.
+//!   every trajectory's status), written atomically ([`crate::durable`]).
 //! - [`resume`]: which planned trajectories are complete and which must be redone.
 //! - [`pipeline`]: [`Recorder`], the tokio-facing bounded queue in front of a blocking writer.
 //! - [`synthetic`]: generated trajectories (small PNGs, smooth wrench and pose) for tests.
@@ -25,16 +28,19 @@
 //! (Foxglove WebSocket) is a separate concern and can still use the `foxglove` crate.
 
 pub mod channels;
-pub mod file;
 pub mod manifest;
 pub mod pipeline;
+pub mod png;
+pub mod reader;
 pub mod resume;
 pub mod synthetic;
+pub mod writer;
 
 pub use channels::{
     CHANNELS, Record, TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_WRENCH,
 };
-pub use file::{FileContents, RecordError, TrajectoryWriter, final_name, partial_name, read_file};
 pub use manifest::{Counts, MANIFEST_NAME, Manifest, SensorInfo, Status, TrajectoryEntry};
 pub use pipeline::{Recorder, RecorderConfig, RecorderStats, WriterGate};
+pub use reader::{FileContents, read_file};
 pub use resume::{ResumePlan, resume};
+pub use writer::{RecordError, TrajectoryWriter, final_name, partial_name};

@@ -19,8 +19,8 @@ use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 
 use super::channels::Record;
-use super::file::{RecordError, TrajectoryWriter, check_id, final_name};
 use super::manifest::{Counts, Manifest, Status};
+use super::writer::{RecordError, TrajectoryWriter, check_id, final_name};
 
 /// Holds the writer thread while closed: a slow disk on demand (tests and demonstrations).
 #[derive(Debug, Clone, Default)]
@@ -338,7 +338,7 @@ impl WriterLoop {
             Err(err) => {
                 let reason = err.to_string();
                 // The rename may not have happened; make sure nothing stays under the final name.
-                let _ = std::fs::remove_file(self.dir.join(super::file::partial_name(&id)));
+                let _ = std::fs::remove_file(self.dir.join(super::writer::partial_name(&id)));
                 self.mark_failed(&id, &reason);
                 Err(RecordError::Failed { id, reason })
             }

@@ -8,8 +8,9 @@
 use std::collections::BTreeSet;
 use std::path::Path;
 
-use super::file::{final_name, partial_id, read_file};
 use super::manifest::{Manifest, Status};
+use super::reader::read_file;
+use super::writer::{final_name, partial_id};
 
 /// The verdict of [`resume`].
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]

@@ -8,9 +8,9 @@ use rig_core::pose::Pose;
 use rig_core::wrench::Wrench;
 
 use super::channels::Record;
-use super::file::RecordError;
 use super::manifest::{Counts, Manifest, SensorInfo};
 use super::pipeline::{Recorder, RecorderConfig};
+use super::writer::RecordError;
 use crate::plan::StageName;
 use crate::sync::{DeviceStamp, FrameIn, Pairer, PairerConfig, WrenchIn};
 
@@ -49,10 +49,8 @@ pub fn png_frame(width: u32, height: u32, k: u64) -> Vec<u8> {
     let img = image::RgbImage::from_fn(width, height, |x, y| {
         image::Rgb([(x * 13 + k as u32) as u8, (y * 17) as u8, (k * 7) as u8])
     });
-    let mut out = Vec::new();
     // Encoding an in-memory RGB8 image to PNG only fails on allocation failure.
-    let _ = img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png);
-    out
+    super::png::encode(&img).unwrap_or_default()
 }
 
 /// The synthetic true force (N) at `t_ms` of a trajectory of `duration_ms`: a loading ramp,

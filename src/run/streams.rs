@@ -3,7 +3,7 @@
 //! - The **F/T task** reads every [`WrenchSample`] of the [`FtStream`], checks it against the
 //!   force limit (tared samples only, unless the config asks for no tare: an untared reading
 //!   is mostly the sensor's bias)
-//!   and forwards it to the sync task. A force above `safety.max_force_n`, a
+//!   and forwards it to the collector. A force above `safety.max_force_n`, a
 //!   saturated sensor, the stream ending (a closed port, a dead link) or no sample within the
 //!   stall timeout raises a [`Trip`], which the motion watches.
 //! - The **camera task** reads every frame of the [`FrameSource`], looks up the simulator's true
@@ -11,7 +11,7 @@
 //!   which encodes it as PNG (lossless, off the async workers) and forwards it. No frame for
 //!   the stall timeout, or the stream ending, raises a [`Trip`].
 //!
-//! Both forward into one bounded channel (the sync task's input). When it is full they wait:
+//! Both forward into one bounded channel (the collector's input). When it is full they wait:
 //! a slow consumer shows as back-pressure (counted in [`StreamCounters::backpressure_waits`],
 //! warned about once), and the device's own buffers (the F/T channel, the camera queue) take
 //! the slack; nothing is dropped silently.
@@ -20,7 +20,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use hardware_mocks::truth::SharedWrenchSource;
 use rig_core::clock::Clock;
 use rig_core::ft::SampleFlags;
 use rig_core::wrench::Wrench;
@@ -117,9 +116,9 @@ pub struct StreamCounters {
     pub frames_dropped: AtomicU64,
     /// Frames that could not be converted or encoded (counted, not recorded).
     pub frames_unencodable: AtomicU64,
-    /// Times a stream found the sync task's input full and waited.
+    /// Times a stream found the collector's input full and waited.
     pub backpressure_waits: AtomicU64,
-    /// Capture stamp of the newest frame handed to the sync task, ns (0: none yet).
+    /// Capture stamp of the newest frame handed to the collector, ns (0: none yet).
     pub newest_frame_stamp_ns: AtomicU64,
     /// The force limit applies to every tared sample; to an untared one (its reading holds
     /// the sensor's bias, on a Nano17 up to a few N, not a contact force) only when this is
@@ -205,11 +204,10 @@ fn trip(tx: &watch::Sender<Option<Trip>>, t: Trip) {
 }
 
 impl Streams {
-    /// Starts the tasks. Events go to `out` (the sync task's input).
+    /// Starts the tasks. Events go to `out` (the collector's input).
     pub fn start(
         ft: FtStream,
         camera: Option<Box<dyn FrameSource>>,
-        truth: Option<SharedWrenchSource>,
         clock: Clock,
         settings: StreamSettings,
         out: mpsc::Sender<Event>,
@@ -230,7 +228,7 @@ impl Streams {
         )));
         let mut encoder = None;
         if let Some(cam) = camera {
-            let (enc_tx, enc_rx) = mpsc::channel::<(Frame, Option<(u64, Wrench)>)>(16);
+            let (enc_tx, enc_rx) = mpsc::channel::<Frame>(16);
             let (c, o, s) = (counters.clone(), out.clone(), stop.clone());
             encoder = std::thread::Builder::new()
                 .name("png-encoder".into())
@@ -239,7 +237,6 @@ impl Streams {
                 .ok();
             tasks.push(tokio::spawn(camera_task(
                 cam,
-                truth,
                 clock,
                 settings,
                 enc_tx,
@@ -379,10 +376,9 @@ async fn ft_task(
 
 async fn camera_task(
     mut cam: Box<dyn FrameSource>,
-    truth: Option<SharedWrenchSource>,
     clock: Clock,
     settings: StreamSettings,
-    enc: mpsc::Sender<(Frame, Option<(u64, Wrench)>)>,
+    enc: mpsc::Sender<Frame>,
     trip_tx: Arc<watch::Sender<Option<Trip>>>,
     counters: Arc<StreamCounters>,
 ) {
@@ -415,41 +411,23 @@ async fn camera_task(
         counters
             .frames_dropped
             .fetch_add(frame.dropped_before, Ordering::Relaxed);
-        let t = match (&truth, cam.true_capture_ns()) {
-            (Some(src), Some(t)) => Some((t, src.wrench_at(t))),
-            _ => None,
-        };
-        if !forward(&enc, (frame, t), &counters).await {
+        if !forward(&enc, frame, &counters).await {
             return;
         }
     }
 }
 
-/// Encodes an RGB image as PNG with fast compression (still lossless).
-pub fn encode_png(img: &image::RgbImage) -> Result<Vec<u8>, image::ImageError> {
-    use image::ImageEncoder;
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    let mut out = Vec::with_capacity(img.as_raw().len() / 2);
-    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Sub).write_image(
-        img.as_raw(),
-        img.width(),
-        img.height(),
-        image::ExtendedColorType::Rgb8,
-    )?;
-    Ok(out)
-}
-
 fn encoder_thread(
-    mut rx: mpsc::Receiver<(Frame, Option<(u64, Wrench)>)>,
+    mut rx: mpsc::Receiver<Frame>,
     out: mpsc::Sender<Event>,
     counters: Arc<StreamCounters>,
     stop: Arc<AtomicBool>,
 ) {
-    while let Some((frame, truth)) = rx.blocking_recv() {
+    while let Some(frame) = rx.blocking_recv() {
         if stop.load(Ordering::Relaxed) {
             return;
         }
-        let png = match frame.to_rgb().map(|img| encode_png(&img)) {
+        let png = match frame.to_rgb().map(|img| crate::record::png::encode(&img)) {
             Ok(Ok(png)) => png,
             Ok(Err(e)) => {
                 tracing::warn!("frame {}: PNG encoding failed: {e}", frame.sequence);
@@ -469,7 +447,7 @@ fn encoder_thread(
             host_rx_ns: frame.received_t_ns,
             dropped_before: frame.dropped_before,
             png,
-            truth,
+            truth: frame.truth.map(|t| (t.capture_t_ns, t.wrench)),
         }));
         let sent = match out.try_send(ev) {
             Ok(()) => true,
@@ -512,7 +490,6 @@ mod tests {
         let (out_tx, mut out_rx) = mpsc::channel(64);
         let streams = Streams::start(
             ft,
-            None,
             None,
             Clock::system(),
             StreamSettings {

@@ -411,7 +411,7 @@ pub fn translate(
     ] {
         r.map_err(|e| anyhow::anyhow!("cannot write {name}: {e:?}"))?;
     }
-    crate::record::file::write_atomic(&tdir.join(INFO), &serde_json::to_vec_pretty(&info)?)?;
+    crate::durable::write_atomic(&tdir.join(INFO), &serde_json::to_vec_pretty(&info)?)?;
     fs::write(out.join("translate-log.csv"), log)?;
 
     // Î_t: every source frame through G_s, with its source force.

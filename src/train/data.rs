@@ -19,8 +19,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use super::modality::{MarkerParams, Modality};
-use crate::record::channels::{self, ImageMsg, PairedMsg};
 use crate::record::manifest::{Manifest, Status};
+use crate::record::reader::{self, Message};
 
 /// Name of a prepared dataset's index.
 pub const PREPARED_INDEX: &str = "prepared.json";
@@ -460,19 +460,12 @@ fn load_trajectory(
         });
     }
     let bytes = fs::read(path)?;
-    let stream = mcap::read::MessageStream::new(&bytes).context("unreadable MCAP")?;
     let mut images: Vec<(i64, Vec<u8>)> = Vec::new();
     let mut paired: BTreeMap<i64, [f32; 3]> = BTreeMap::new();
-    for msg in stream {
-        let msg = msg.context("corrupt MCAP record")?;
-        match msg.channel.topic.as_str() {
-            channels::TOPIC_IMAGE => {
-                let m: ImageMsg = serde_json::from_slice(&msg.data)?;
-                let png = channels::base64_decode(&m.data).context("frame is not base64")?;
-                images.push((m.seq, png));
-            }
-            channels::TOPIC_PAIRED => {
-                let m: PairedMsg = serde_json::from_slice(&msg.data)?;
+    for msg in reader::messages(&bytes).map_err(anyhow::Error::msg)? {
+        match msg.map_err(anyhow::Error::msg)? {
+            Message::Frame { seq, png } => images.push((seq, png)),
+            Message::Paired(m) => {
                 if let Some(f) = m.force_n {
                     paired.insert(m.frame_seq, [f[0] as f32, f[1] as f32, f[2] as f32]);
                 }
@@ -487,9 +480,8 @@ fn load_trajectory(
     let mut pixels = Vec::with_capacity(images.len() * spec.frame_bytes());
     let mut forces = Vec::with_capacity(images.len());
     for (seq, png) in &images {
-        let img = image::load_from_memory(png)
-            .with_context(|| format!("frame {seq} is not a PNG"))?
-            .to_rgb8();
+        let img =
+            crate::record::png::decode(png).with_context(|| format!("frame {seq} is not a PNG"))?;
         pixels.extend_from_slice(&prepare_image(&img, spec, params));
         forces.push(paired[seq]);
     }
@@ -578,7 +570,7 @@ fn write_cache(
     if let Some(dir) = path.parent() {
         let _ = fs::create_dir_all(dir);
     }
-    let _ = crate::record::file::write_atomic(path, &buf);
+    let _ = crate::durable::write_atomic(path, &buf);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -640,7 +632,7 @@ pub fn write_prepared(dir: &Path, set: &LabelledSet, role: &str) -> anyhow::Resu
         f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
     }
     fs::rename(&tmp, dir.join(PREPARED_FRAMES))?;
-    crate::record::file::write_atomic(
+    crate::durable::write_atomic(
         &dir.join(PREPARED_INDEX),
         &serde_json::to_vec_pretty(&index)?,
     )?;

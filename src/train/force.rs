@@ -434,7 +434,7 @@ fn save_checkpoint(
     fs::rename(&tmp_w, out.join(WEIGHTS))?;
     fs::rename(&tmp_r, out.join(RESUME_WEIGHTS))?;
     fs::rename(&tmp_o, out.join(OPTIM))?;
-    crate::record::file::write_atomic(&out.join(MODEL_INFO), &serde_json::to_vec_pretty(info)?)?;
+    crate::durable::write_atomic(&out.join(MODEL_INFO), &serde_json::to_vec_pretty(info)?)?;
     Ok(())
 }
 

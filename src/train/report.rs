@@ -119,7 +119,7 @@ impl Table {
     /// `results.md`, `results.csv`, `results.json` in `dir`, each written atomically.
     pub fn write(&self, dir: &Path) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir)?;
-        let w = crate::record::file::write_atomic;
+        let w = crate::durable::write_atomic;
         w(&dir.join("results.md"), self.markdown().as_bytes())?;
         w(&dir.join("results.csv"), self.csv().as_bytes())?;
         w(&dir.join("results.json"), &serde_json::to_vec_pretty(self)?)?;

@@ -5,8 +5,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hardware_mocks::camera::{SimCamera, SimCameraConfig, capture_time_ns, is_dropped};
-use rig::camera::sim::SimFrameSource;
 use rig::camera::{FrameSource, PixelFormat};
+use rig::simrig::SimFrameSource;
 use rig_core::clock::Clock;
 
 fn solid(t_ns: u64) -> Option<image::RgbImage> {

@@ -42,3 +42,30 @@ pub fn one_rig_at_a_time() -> MutexGuard<'static, ()> {
     static RIG: Mutex<()> = Mutex::new(());
     RIG.lock().unwrap_or_else(|e| e.into_inner())
 }
+
+/// Drains `stream` into `each` once its device has gone quiet (muted): until the reader has
+/// delivered every sample the device sent (`sent`, read at two polls 50 ms apart that agree, so
+/// a batch the device built just before the mute is counted too). Waits in clock time, up to
+/// 10 s: a loaded host has starved the reader for well over the 150 ms a fixed wait allowed.
+pub async fn drain_until_quiet(
+    clock: &rig_core::clock::Clock,
+    stream: &mut rig::force::FtStream,
+    sent: impl Fn() -> u64,
+    mut each: impl FnMut(&rig::force::WrenchSample),
+) {
+    let deadline = clock.now_ns() + 10_000_000_000;
+    let mut last_sent = None;
+    loop {
+        while let Some(s) = stream.try_next() {
+            each(&s);
+        }
+        let now_sent = sent();
+        if (last_sent == Some(now_sent) && stream.stats().samples >= now_sent)
+            || clock.now_ns() > deadline
+        {
+            return;
+        }
+        last_sent = Some(now_sent);
+        clock.sleep(std::time::Duration::from_millis(50)).await;
+    }
+}

@@ -57,7 +57,9 @@ async fn ft_netft_rdt_7khz_for_5s_counts_injected_loss_and_reordering_exactly() 
     let mut gaps = 0u64;
     let mut max_abs = [0.0f64; 6];
     while clock.now_ns() - t0 < 5_000_000_000 {
-        let Ok(Some(s)) = clock.timeout(Duration::from_secs(1), stream.next()).await else {
+        // Catches a dead stream, not a slow host: a loaded CI machine has starved the reader
+        // for over a second of real time.
+        let Ok(Some(s)) = clock.timeout(Duration::from_secs(10), stream.next()).await else {
             panic!("stalled: {:?}", stream.error());
         };
         n += 1;
@@ -73,16 +75,21 @@ async fn ft_netft_rdt_7khz_for_5s_counts_injected_loss_and_reordering_exactly() 
         }
     }
     mock.faults().set_muted(true);
-    clock.sleep(Duration::from_millis(200)).await;
-    while let Some(s) = stream.try_next() {
-        n += 1;
-        max_seq = max_seq.max(s.device_seq);
-        if s.flags.contains(SampleFlags::REORDERED) {
-            late += 1;
-        }
-    }
-    let st = stream.stats();
     let ms = mock.stats();
+    crate::common::drain_until_quiet(
+        &clock,
+        &mut stream,
+        || MockStats::get(&ms.sent),
+        |s| {
+            n += 1;
+            max_seq = max_seq.max(s.device_seq);
+            if s.flags.contains(SampleFlags::REORDERED) {
+                late += 1;
+            }
+        },
+    )
+    .await;
+    let st = stream.stats();
     let sent = MockStats::get(&ms.sent);
     println!(
         "netft: max rdt_sequence {max_seq} in 5 s ({:.0} Hz), sent {sent}, received {n}, stats {st:?}, mock dropped {} reordered {} duplicated {}",

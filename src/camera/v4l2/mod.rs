@@ -426,6 +426,7 @@ impl<D: DeviceLayer> Reader<D> {
                 dropped_before: gap + discarded_run,
                 format: self.format,
                 data: raw.data,
+                truth: None,
             };
             match self.tx.try_send(Ok(frame)) {
                 Ok(()) => discarded_run = 0,

@@ -8,9 +8,9 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use crate::simrig::sim::optics::{ImageEffects, render};
 use anyhow::Context;
 use clap::Args;
-use hardware_mocks::sim::optics::{ImageEffects, render};
 use plotters::prelude::*;
 use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
@@ -83,7 +83,7 @@ pub fn effect_sets() -> Vec<(&'static str, ImageEffects)> {
 pub fn measure(min_time_s: f64) -> anyhow::Result<Vec<RenderResult>> {
     let config = RigConfig::sim_source();
     let optics = config.optics.clone().unwrap_or_default();
-    let mut scene = crate::cli::sim::render_scene(
+    let mut scene = crate::simrig::render::render_scene(
         &config,
         Indenter::builtin("sphere")?,
         [0.0, 0.0],
@@ -92,7 +92,7 @@ pub fn measure(min_time_s: f64) -> anyhow::Result<Vec<RenderResult>> {
     );
     scene.effects.image = None;
     scene.effects.surface_field = true;
-    let out = hardware_mocks::sim::simulate(&scene).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let out = crate::simrig::sim::simulate(&scene).map_err(|e| anyhow::anyhow!("{e}"))?;
     let field = out
         .field
         .context("the simulator returned no surface field")?;

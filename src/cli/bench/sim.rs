@@ -16,10 +16,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
+use crate::simrig::sim::contact::analytic;
+use crate::simrig::sim::{ContactModel, IndenterPose, Scene, Simulator};
 use anyhow::Context;
 use clap::Args;
-use hardware_mocks::sim::contact::analytic;
-use hardware_mocks::sim::{ContactModel, IndenterPose, Scene, Simulator};
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::Indenter;
 

@@ -1,4 +1,4 @@
-//! The sync task: pairs frames with the wrench for the whole run and writes the open
+//! The collector task: pairs frames with the wrench for the whole run and writes the open
 //! trajectory's records.
 //!
 //! One [`Pairer`] lives for the whole run and is fed everything the streams deliver (wrench
@@ -6,16 +6,16 @@
 //! estimators keep converging across the run instead of restarting per trajectory. What is
 //! *recorded* is decided by the orchestrator's commands:
 //!
-//! - [`SyncCmd::Begin`] after the tare: from now on wrench samples received and frames
+//! - [`CollectCmd::Begin`] after the tare: from now on wrench samples received and frames
 //!   captured are written;
-//! - [`SyncCmd::Stage`] at each stage's start: a stage record; TCP poses are written from the
+//! - [`CollectCmd::Stage`] at each stage's start: a stage record; TCP poses are written from the
 //!   first stage's start;
-//! - [`SyncCmd::End`] with the time of the last state of the motion: frames captured and poses
+//! - [`CollectCmd::End`] with the time of the last state of the motion: frames captured and poses
 //!   received after it are not written; wrench samples are, for a short grace so the last
 //!   frames have samples on both sides. Once a frame captured after the end has arrived (every
 //!   frame of the trajectory is in), every recorded frame still held by the pairer is released
 //!   and its paired wrench written, and the trajectory's [`TrajStats`] come back;
-//! - [`SyncCmd::Abort`]: stop writing at once (the orchestrator aborts the file).
+//! - [`CollectCmd::Abort`]: stop writing at once (the orchestrator aborts the file).
 //!
 //! Every frame written gets exactly one paired record (and, on the simulated rig, one truth
 //! record), so the file's counts say at once whether anything went missing.
@@ -41,7 +41,7 @@ use crate::sync::{
 
 /// Commands of the orchestrator.
 #[derive(Debug)]
-pub enum SyncCmd {
+pub enum CollectCmd {
     /// Start writing the open trajectory's records.
     Begin,
     /// A stage begins at `t_ns`.
@@ -79,9 +79,9 @@ pub struct TrajStats {
     pub last_frame_ns: Option<u64>,
 }
 
-/// Settings of the sync task.
+/// Settings of the collector.
 #[derive(Debug, Clone)]
-pub struct SyncSettings {
+pub struct CollectorSettings {
     pub pairer: PairerConfig,
     /// Wrench samples written after the motion's end so the last frames are bracketed, ns.
     pub grace_ns: u64,
@@ -126,29 +126,29 @@ impl Recording {
 /// Sees every record written (the live view).
 pub type Tap = Arc<dyn Fn(&Record) + Send + Sync>;
 
-struct SyncTask {
+struct Collector {
     rec: Arc<Recorder>,
     live: Option<Tap>,
     pairer: Pairer,
     clock: Clock,
-    settings: SyncSettings,
+    settings: CollectorSettings,
     cur: Option<Recording>,
     newest_wrench_ns: u64,
     newest_frame_ns: u64,
     rtde_clock: ClockEstimator,
 }
 
-/// Spawns the sync task. It ends when `cmds` closes.
+/// Spawns the collector. It ends when `cmds` closes.
 pub fn spawn(
     rec: Arc<Recorder>,
     live: Option<Tap>,
-    settings: SyncSettings,
+    settings: CollectorSettings,
     clock: Clock,
     events: mpsc::Receiver<Event>,
     samples: broadcast::Receiver<RobotState>,
-    cmds: mpsc::UnboundedReceiver<SyncCmd>,
+    cmds: mpsc::UnboundedReceiver<CollectCmd>,
 ) -> JoinHandle<()> {
-    let task = SyncTask {
+    let task = Collector {
         rec,
         live,
         pairer: Pairer::new(settings.pairer.clone()),
@@ -162,12 +162,12 @@ pub fn spawn(
     tokio::spawn(task.run(events, samples, cmds))
 }
 
-impl SyncTask {
+impl Collector {
     async fn run(
         mut self,
         mut events: mpsc::Receiver<Event>,
         mut samples: broadcast::Receiver<RobotState>,
-        mut cmds: mpsc::UnboundedReceiver<SyncCmd>,
+        mut cmds: mpsc::UnboundedReceiver<CollectCmd>,
     ) {
         let mut samples_open = true;
         let mut events_open = true;
@@ -233,25 +233,25 @@ impl SyncTask {
         }
     }
 
-    async fn command(&mut self, c: SyncCmd) {
+    async fn command(&mut self, c: CollectCmd) {
         match c {
-            SyncCmd::Begin => {
+            CollectCmd::Begin => {
                 self.cur = Some(Recording::new(self.clock.now_ns()));
             }
-            SyncCmd::Stage { t_ns, stage } => {
+            CollectCmd::Stage { t_ns, stage } => {
                 self.pairer.set_stage(t_ns as f64, stage);
                 if let Some(r) = &mut self.cur {
                     r.started_ns.get_or_insert(t_ns);
                     self.write(Record::Stage { t_ns, stage }).await;
                 }
             }
-            SyncCmd::End { t_end_ns, reply } => match &mut self.cur {
+            CollectCmd::End { t_end_ns, reply } => match &mut self.cur {
                 Some(r) => r.end = Some((t_end_ns, reply)),
                 None => {
                     let _ = reply.send(Err("no trajectory was being recorded".into()));
                 }
             },
-            SyncCmd::Abort { reply } => {
+            CollectCmd::Abort { reply } => {
                 self.cur = None;
                 let _ = reply.send(());
             }

@@ -1,4 +1,4 @@
-//! One trajectory file: written beside its final name, renamed when complete; and read back.
+//! One trajectory file, written beside its final name and renamed when complete.
 //!
 //! Life of a file: [`TrajectoryWriter::create`] opens `.<id>.mcap.partial` in the output
 //! directory; [`TrajectoryWriter::write`] appends messages (every I/O error is returned, so a
@@ -7,15 +7,16 @@
 //! the directory so the rename itself survives a power cut. [`TrajectoryWriter::abort`] (and a
 //! drop without `finish`) removes the partial. A crash can therefore leave a partial behind, never
 //! a half-written file under the final name; resume ([`super::resume`]) removes stale partials.
+//! Reading a file back is [`super::reader`].
 
 use std::collections::BTreeMap;
 use std::fs::{self, File, OpenOptions};
-use std::io::{BufWriter, Write};
+use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use rig_core::wrench::Wrench;
 
-use super::channels::{self, CHANNELS, PairedMsg, Record, TOPIC_IMAGE, TOPIC_PAIRED};
+use super::channels::{self, CHANNELS, Record};
+use crate::durable::sync_dir;
 use super::manifest::Counts;
 
 /// File name of a complete trajectory.
@@ -252,170 +253,4 @@ impl Drop for TrajectoryWriter {
     fn drop(&mut self) {
         self.discard();
     }
-}
-
-/// `fsync` a directory so that a rename in it is durable.
-pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
-    File::open(dir)?.sync_all()
-}
-
-/// Write `bytes` to `path` atomically: a temporary beside it, fsync, rename, fsync the directory.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp"));
-    let res = (|| {
-        let mut f = File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        drop(f);
-        fs::rename(&tmp, path)?;
-        sync_dir(dir)
-    })();
-    if res.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    res
-}
-
-/// What a complete trajectory file holds.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
-pub struct FileContents {
-    pub counts: Counts,
-    /// Topics found, with their schema names.
-    pub channels: BTreeMap<String, String>,
-    /// Sync error (ns) of every paired frame that has one.
-    pub sync_errors_ns: Vec<f64>,
-    /// Paired frames whose wrench was refused or held, by status.
-    pub paired_status: BTreeMap<String, u64>,
-    /// Frame sequence numbers in file order.
-    pub frame_seqs: Vec<i64>,
-    /// Wrench counter values in file order (when the device has a counter).
-    pub wrench_seqs: Vec<i64>,
-    /// Log times of wrench messages, ns.
-    pub wrench_times_ns: Vec<u64>,
-    /// Every paired-wrench message in file order: its frame and its wrench (absent when the
-    /// pairing was refused).
-    pub paired: Vec<PairedRead>,
-    /// Simulated rig only: every true-wrench message in file order (one per frame).
-    pub truth: Vec<TruthRead>,
-    /// The MCAP summary's message count per topic (cross-check of the linear read).
-    pub summary_counts: BTreeMap<String, u64>,
-}
-
-/// One `/sync/paired_wrench` message as read back: the frame it belongs to and its wrench.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct PairedRead {
-    pub frame_seq: i64,
-    /// Force, N (`None` when the pairing was refused).
-    pub force_n: Option<[f64; 3]>,
-    /// Torque, N·mm (`None` when the pairing was refused).
-    pub torque_nmm: Option<[f64; 3]>,
-}
-
-/// One `/sim/true_wrench` message as read back: the simulator's wrench at the frame's true
-/// capture time.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct TruthRead {
-    pub frame_seq: i64,
-    pub wrench: Wrench,
-}
-
-/// Read a trajectory file completely: every record parsed, every message decoded.
-pub fn read_file(path: &Path) -> Result<FileContents, String> {
-    let bytes = fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
-    read_bytes(&bytes)
-}
-
-/// [`read_file`] over bytes in memory.
-pub fn read_bytes(bytes: &[u8]) -> Result<FileContents, String> {
-    let summary = mcap::read::Summary::read(bytes)
-        .map_err(|e| format!("unreadable MCAP summary: {e}"))?
-        .ok_or("no MCAP summary section (file not finished)")?;
-    let mut out = FileContents::default();
-    if let Some(stats) = &summary.stats {
-        for (cid, n) in &stats.channel_message_counts {
-            if let Some(ch) = summary.channels.get(cid) {
-                out.summary_counts.insert(ch.topic.clone(), *n);
-            }
-        }
-    }
-    for ch in summary.channels.values() {
-        let schema = ch
-            .schema
-            .as_ref()
-            .map(|s| s.name.clone())
-            .unwrap_or_default();
-        out.channels.insert(ch.topic.clone(), schema);
-    }
-    let stream =
-        mcap::read::MessageStream::new(bytes).map_err(|e| format!("unreadable MCAP: {e}"))?;
-    for msg in stream {
-        let msg = msg.map_err(|e| format!("corrupt MCAP record: {e}"))?;
-        let topic = msg.channel.topic.as_str();
-        let bad = |e: serde_json::Error| format!("bad {topic} message: {e}");
-        match topic {
-            TOPIC_IMAGE => {
-                let m: channels::ImageMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
-                if m.format != "png" || channels::base64_decode(&m.data).is_none() {
-                    return Err(format!("frame {} is not base64 PNG", m.seq));
-                }
-                out.frame_seqs.push(m.seq);
-                out.counts.frames += 1;
-            }
-            channels::TOPIC_WRENCH => {
-                let m: channels::WrenchMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
-                if let Some(s) = m.seq {
-                    out.wrench_seqs.push(s);
-                }
-                out.wrench_times_ns.push(msg.log_time);
-                out.counts.wrench += 1;
-            }
-            channels::TOPIC_POSE => {
-                let _: channels::PoseMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
-                out.counts.poses += 1;
-            }
-            TOPIC_PAIRED => {
-                let m: PairedMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
-                if let Some(e) = m.sync_error_ns {
-                    out.sync_errors_ns.push(e);
-                }
-                *out.paired_status.entry(m.status).or_default() += 1;
-                out.paired.push(PairedRead {
-                    frame_seq: m.frame_seq,
-                    force_n: m.force_n,
-                    torque_nmm: m.torque_nmm,
-                });
-                out.counts.paired += 1;
-            }
-            channels::TOPIC_STAGE => {
-                let _: channels::StageMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
-                out.counts.stages += 1;
-            }
-            channels::TOPIC_TRUTH => {
-                let m: channels::TruthMsg = serde_json::from_slice(&msg.data).map_err(bad)?;
-                out.truth.push(TruthRead {
-                    frame_seq: m.frame_seq,
-                    wrench: Wrench {
-                        force_n: m.force_n,
-                        torque_nmm: m.torque_nmm,
-                    },
-                });
-                out.counts.truth += 1;
-            }
-            other => return Err(format!("unexpected channel {other}")),
-        }
-    }
-    for (topic, n) in &out.summary_counts {
-        let seen = out.counts.of_topic(topic);
-        if seen != *n {
-            return Err(format!(
-                "summary says {n} messages on {topic}, the file holds {seen}"
-            ));
-        }
-    }
-    Ok(out)
 }

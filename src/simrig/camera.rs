@@ -4,13 +4,18 @@
 //! clock; this adapter stamps them with the rig's receive time, counts sequence gaps and hands
 //! them out as RGB frames. The device timestamp comes from the camera's own clock and is left
 //! for the sync estimator to map (`capture_t_ns` is `None`), as with any external device.
+//!
+//! What only the simulator knows travels with the frame, in [`Frame::truth`]: the instant the
+//! frame was really captured and, when a truth source is attached ([`SimFrameSource::with_truth`]),
+//! the true contact wrench at that instant. The lab's [`FrameSource`] trait knows nothing of it.
 
 use hardware_mocks::camera::SimCamera;
+use hardware_mocks::truth::SharedWrenchSource;
 use rig_core::clock::Clock;
 
-use super::{
-    CameraError, CaptureStats, Frame, FrameFormat, FrameFuture, FrameSource, PixelFormat,
-    SequenceTracker,
+use crate::camera::{
+    CameraError, CaptureStats, Frame, FrameFormat, FrameFuture, FrameSource, FrameTruth,
+    PixelFormat, SequenceTracker,
 };
 
 /// A [`FrameSource`] over a running [`SimCamera`].
@@ -20,7 +25,7 @@ pub struct SimFrameSource {
     format: FrameFormat,
     seq: SequenceTracker,
     frames: u64,
-    last_capture_ns: Option<u64>,
+    truth: Option<SharedWrenchSource>,
 }
 
 impl SimFrameSource {
@@ -38,8 +43,14 @@ impl SimFrameSource {
             },
             seq: SequenceTracker::new(None),
             frames: 0,
-            last_capture_ns: None,
+            truth: None,
         }
+    }
+
+    /// Attaches the true wrench of `source` at each frame's true capture time to the frame.
+    pub fn with_truth(mut self, source: SharedWrenchSource) -> Self {
+        self.truth = Some(source);
+        self
     }
 
     /// The camera's own counters (delivered, injected drops, overruns).
@@ -64,7 +75,10 @@ impl FrameSource for SimFrameSource {
             let received_t_ns = self.clock.now_ns();
             let dropped_before = self.seq.observe(f.sequence);
             self.frames += 1;
-            self.last_capture_ns = Some(f.capture_t_ns);
+            let truth = self.truth.as_ref().map(|src| FrameTruth {
+                capture_t_ns: f.capture_t_ns,
+                wrench: src.wrench_at(f.capture_t_ns),
+            });
             let (width, height) = f.image.dimensions();
             Ok(Frame {
                 sequence: f.sequence,
@@ -78,6 +92,7 @@ impl FrameSource for SimFrameSource {
                     ..self.format
                 },
                 data: f.image.into_raw(),
+                truth,
             })
         })
     }
@@ -87,9 +102,5 @@ impl FrameSource for SimFrameSource {
             frames: self.frames,
             dropped: self.seq.lost(),
         }
-    }
-
-    fn true_capture_ns(&self) -> Option<u64> {
-        self.last_capture_ns
     }
 }

@@ -1,0 +1,215 @@
+//! The rig a run drives: the lab's (robot endpoints, the configured F/T front end and V4L2
+//! camera) or the simulated one ([`crate::simrig`]), its clock, and the robot connection.
+
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use rig_core::clock::Clock;
+use rig_core::config::{CameraKind, ForceSensorKind, RigConfig};
+use rig_core::indenter::Indenter;
+use rig_core::pose::Pose;
+
+use super::RunOptions;
+use crate::camera::FrameSource;
+use crate::force::{self, FrontEndSettings, FtStream};
+use crate::record::{Manifest, Recorder, RecorderConfig};
+use crate::robot::{Robot, RobotEndpoints, RobotOptions};
+use crate::simrig::{self, RunningSimRig};
+
+/// The F/T stream and the camera of the rig.
+pub(super) struct Devices {
+    pub ft: FtStream,
+    pub camera: Option<Box<dyn FrameSource>>,
+    /// The F/T's full range and front end, for the manifest.
+    pub calibration: serde_json::Value,
+    pub ft_rate_hz: f64,
+}
+
+fn calibration_json(settings: &FrontEndSettings, description: &str) -> serde_json::Value {
+    serde_json::json!({
+        "front_end": description,
+        "max_loads": settings.max_loads,
+        "max_loads_units": "Fx Fy Fz in N, Tx Ty Tz in N·mm",
+        "counts_per_force": settings.counts_per_force,
+        "counts_per_torque": settings.counts_per_torque,
+        "rate_hz": settings.rate_hz,
+        "calibration_file": settings.calibration.as_ref().map(|c| serde_json::json!({
+            "serial": c.serial,
+            "max_loads": c.max_loads,
+        })),
+    })
+}
+
+async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<Devices> {
+    let fs = config.force_sensor.as_ref().context(
+        "the rig config has no [force_sensor]: `rig run` records forces; add the section (see \
+         rig-configs/lab-example.toml)",
+    )?;
+    if fs.kind == ForceSensorKind::Sim {
+        bail!(
+            "force_sensor.kind = \"sim\" needs the simulated rig (robot.simulated = true): a lab \
+             robot pressing on a simulated sensor would record nothing real"
+        );
+    }
+    let settings = FrontEndSettings::from_config(fs)?;
+    let ft = force::open(fs, clock.clone()).await?;
+    let camera: Option<Box<dyn FrameSource>> = match &config.camera {
+        None => None,
+        Some(c) if c.kind == CameraKind::Sim => {
+            bail!("camera.kind = \"sim\" needs the simulated rig (robot.simulated = true)")
+        }
+        Some(c) => Some(open_v4l2(c, clock)?),
+    };
+    Ok(Devices {
+        calibration: calibration_json(&settings, &ft.description),
+        ft,
+        camera,
+        ft_rate_hz: settings.rate_hz,
+    })
+}
+
+#[cfg(feature = "v4l")]
+fn open_v4l2(
+    c: &rig_core::config::CameraConfig,
+    clock: &Clock,
+) -> anyhow::Result<Box<dyn FrameSource>> {
+    use crate::camera::v4l2;
+    let device = c
+        .device
+        .as_deref()
+        .context("camera.device is required for a V4L2 camera (e.g. /dev/video0)")?;
+    let src = v4l2::device::open(
+        device,
+        clock.clone(),
+        &v4l2::Request::new(c.width_px, c.height_px, c.fps),
+        &v4l2::V4l2Options::default(),
+    )?;
+    Ok(Box::new(src))
+}
+
+#[cfg(not(feature = "v4l"))]
+fn open_v4l2(
+    _c: &rig_core::config::CameraConfig,
+    _clock: &Clock,
+) -> anyhow::Result<Box<dyn FrameSource>> {
+    bail!("this rig binary was built without V4L2 support; rebuild with `--features v4l`")
+}
+
+/// The rig of a run, open: its clock, where the robot is, its F/T and camera, and the
+/// simulated rig itself when it is the simulated one.
+pub(super) struct Rig {
+    pub clock: Clock,
+    pub endpoints: RobotEndpoints,
+    pub devices: Devices,
+    pub sim: Option<RunningSimRig>,
+}
+
+/// Opens the configured rig: the simulated one in-process (its UR5e's TCP starting at `home`),
+/// or the lab's.
+pub(super) async fn open_rig(
+    config: &RigConfig,
+    indenter: &Indenter,
+    opts: &RunOptions,
+    home: Pose,
+) -> anyhow::Result<Rig> {
+    if !config.robot.simulated {
+        let clock = Clock::system();
+        let ip = tokio::net::lookup_host((config.robot.host.as_str(), config.robot.rtde_port))
+            .await
+            .with_context(|| format!("resolving robot.host {:?}", config.robot.host))?
+            .next()
+            .with_context(|| format!("robot.host {:?} has no address", config.robot.host))?
+            .ip();
+        let endpoints = RobotEndpoints {
+            rtde: std::net::SocketAddr::new(ip, config.robot.rtde_port),
+            dashboard: std::net::SocketAddr::new(ip, config.robot.dashboard_port),
+            script: std::net::SocketAddr::new(ip, config.robot.script_port),
+        };
+        let devices = open_lab_devices(config, &clock).await?;
+        return Ok(Rig {
+            clock,
+            endpoints,
+            devices,
+            sim: None,
+        });
+    }
+    let clock = Clock::governed(opts.speed_factor);
+    let started = simrig::start(
+        config,
+        indenter,
+        &clock,
+        simrig::StartOptions {
+            home,
+            speed_factor: opts.speed_factor,
+            physics: opts.sim_physics.clone(),
+            ft_front_end: opts.sim_ft,
+        },
+    )
+    .await?;
+    let devices = Devices {
+        calibration: calibration_json(&started.ft_settings, &started.ft.description),
+        ft_rate_hz: started.ft_settings.rate_hz,
+        ft: started.ft,
+        camera: started.camera,
+    };
+    tracing::info!(
+        "simulated rig: UR5e RTDE {}, {}, camera {}; clock ×{}",
+        started.endpoints.rtde,
+        devices.ft.description,
+        if devices.camera.is_some() {
+            "on"
+        } else {
+            "off"
+        },
+        opts.speed_factor
+    );
+    Ok(Rig {
+        clock,
+        endpoints: started.endpoints,
+        devices,
+        sim: Some(started.rig),
+    })
+}
+
+/// Starts the recorder with `manifest` (every trajectory pending) and the F/T's calibration.
+/// It starts before the robot's program is armed, so even a run that cannot reach the robot
+/// is continued with --resume.
+pub(super) fn start_recorder(
+    opts: &RunOptions,
+    mut manifest: Manifest,
+    devices: &Devices,
+) -> anyhow::Result<Arc<Recorder>> {
+    manifest.calibration = devices.calibration.clone();
+    let rec = Recorder::start(&opts.out, manifest, RecorderConfig::default()).with_context(|| {
+        format!(
+            "cannot record into {}; check the path and its permissions, or choose another --out",
+            opts.out.display()
+        )
+    })?;
+    Ok(Arc::new(rec))
+}
+
+/// Connects to the robot, powers it up and arms its control program.
+pub(super) async fn connect_robot(
+    config: &RigConfig,
+    endpoints: RobotEndpoints,
+    speed: f64,
+    clock: &Clock,
+) -> anyhow::Result<Robot> {
+    // The watchdog guards against the rig going silent in real time. On the simulated rig the
+    // controller counts clock time, which runs `speed` times faster, so the same real
+    // tolerance needs a rate that many times lower.
+    // A link lost mid-trajectory fails it (its streams have a hole and the arm paused in the
+    // gel); the client reconnects and the run recovers and retracts before going on.
+    let robot_opts = RobotOptions {
+        frequency_hz: Some(config.robot.rtde_frequency_hz),
+        watchdog_min_hz: config.robot.watchdog_min_hz / speed,
+        link_loss: crate::robot::LinkLossPolicy::Abort,
+        ..Default::default()
+    };
+    let mut robot = Robot::connect(endpoints, robot_opts, clock.clone())
+        .await
+        .context("connecting to the robot")?;
+    robot.prepare().await.context("preparing the robot")?;
+    Ok(robot)
+}

@@ -1,0 +1,398 @@
+//! One trajectory of a run: its moves, its recording, what goes wrong, and what is done about
+//! it.
+//!
+//! [`record`] moves the arm to the trajectory's start at approach height (off the gel), tares
+//! the F/T there, runs the four stages under watch of the streams' trips ([`guarded`]) while
+//! the collector writes their records, completes the file and compares the logged TCP path with
+//! the planned lines ([`assess`]). [`fail`] handles a failure: the open file is aborted and
+//! marked failed, then [`after_failure`] stops, recovers and retracts the arm as far as is safe
+//! and says whether the run must stop.
+
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use indicatif::ProgressBar;
+use rig_core::clock::Clock;
+use rig_core::config::{OnFailure, RigConfig};
+use rig_core::pose::{self, Pose};
+use tokio::sync::{mpsc, oneshot, watch};
+
+use super::collector::{CollectCmd, TrajStats};
+use super::streams::{Streams, Trip};
+use super::summary::TrajectoryOutcome;
+use crate::plan::{Plan, Stage, StageName, Trajectory};
+use crate::record::Recorder;
+use crate::robot::{Move, MovesLog, Robot};
+
+/// Moves of one stage: a moveL to each waypoint after the first, with the waypoint it starts
+/// from. Labels read `<trajectory>/<stage>/<k>` so an error names both.
+pub fn stage_moves(t: &Trajectory, stage: &Stage) -> Vec<(Move, Pose)> {
+    stage
+        .waypoints
+        .windows(2)
+        .enumerate()
+        .map(|(k, pair)| {
+            (
+                Move {
+                    label: format!("{}/{}/{k}", t.id, stage.name),
+                    pose: pair[1],
+                    speed_m_s: stage.speed_mm_s * 1e-3,
+                    accel_m_s2: stage.accel_mm_s2 * 1e-3,
+                },
+                pair[0],
+            )
+        })
+        .collect()
+}
+
+/// Moves of one trajectory: every stage's [`stage_moves`], in order.
+pub fn trajectory_moves(t: &Trajectory) -> Vec<(Move, Pose)> {
+    t.stages.iter().flat_map(|s| stage_moves(t, s)).collect()
+}
+/// Distance (m) of `p` from the segment `a`–`b`.
+fn segment_distance(p: &nalgebra::Vector3<f64>, a: &Pose, b: &Pose) -> f64 {
+    let (a, b) = (a.position(), b.position());
+    let ab = b - a;
+    let len2 = ab.norm_squared();
+    let s = if len2 > 0.0 {
+        ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + ab * s)).norm()
+}
+
+/// Compare a trajectory's logged TCP path with its plan.
+pub fn assess(plan: &Plan, t: &Trajectory, log: &MovesLog) -> TrajectoryOutcome {
+    let moves = trajectory_moves(t);
+    let frame_inv = pose::pose_inv(&plan.surface_frame);
+    let mut max_dev: f64 = 0.0;
+    let mut max_over: f64 = 0.0;
+    for s in &log.samples {
+        let Some((m, from)) = moves.iter().find(|(m, _)| m.label == s.label) else {
+            continue;
+        };
+        let p = s.state.actual_tcp_pose;
+        max_dev = max_dev.max(segment_distance(&p.position(), from, &m.pose));
+        // Depth below the undeformed surface, in the surface frame (its +z is the normal).
+        let local = pose::pose_trans(&frame_inv, &p);
+        max_over = max_over.max(-local.z * 1e3 - t.depth_mm);
+    }
+    let t_first = log.samples.first().map(|s| s.state.t_host_ns).unwrap_or(0);
+    let t_last = log.samples.last().map(|s| s.state.t_host_ns).unwrap_or(0);
+    TrajectoryOutcome {
+        id: t.id.clone(),
+        max_path_deviation_mm: max_dev * 1e3,
+        max_depth_overshoot_mm: max_over.max(0.0),
+        samples: log.samples.len(),
+        poses_recorded: 0,
+        duration_s: (t_last.saturating_sub(t_first)) as f64 * 1e-9,
+        wall_time_s: 0.0,
+        stats: TrajStats::default(),
+    }
+}
+
+/// Why a trajectory failed.
+pub(super) enum TrajectoryError {
+    /// The robot could not do it (fault, stop, link loss): the run may continue after recovery.
+    Motion(String),
+    /// A stream tripped the safety watch; the arm was stopped.
+    Trip(Trip),
+    /// The recording failed (disk full, I/O error): the run stops.
+    Record(String),
+}
+
+impl TrajectoryError {
+    pub(super) fn reason(&self) -> String {
+        match self {
+            TrajectoryError::Motion(r) | TrajectoryError::Record(r) => r.clone(),
+            TrajectoryError::Trip(t) => t.to_string(),
+        }
+    }
+}
+
+/// Everything a trajectory needs besides the robot.
+pub(super) struct Ctx<'a> {
+    pub config: &'a RigConfig,
+    pub plan: &'a Plan,
+    pub clock: &'a Clock,
+    pub rec: &'a Recorder,
+    pub streams: &'a Streams,
+    pub collector: &'a mpsc::UnboundedSender<CollectCmd>,
+    pub tare_samples: u64,
+    pub tare_timeout: Duration,
+    /// Stage starts, announced to the fault injector (simulated rig).
+    pub stage_tx: &'a watch::Sender<Option<(String, StageName)>>,
+}
+
+/// Run `fut` (a motion) unless a trip comes first.
+async fn guarded<T>(
+    trips: &mut watch::Receiver<Option<Trip>>,
+    fut: impl std::future::Future<Output = Result<T, crate::robot::MotionError>>,
+) -> Result<T, TrajectoryError> {
+    if let Some(t) = trips.borrow_and_update().clone() {
+        return Err(TrajectoryError::Trip(t));
+    }
+    tokio::select! {
+        r = fut => r.map_err(|e| TrajectoryError::Motion(e.to_string())),
+        t = trips.wait_for(|t| t.is_some()) => Err(TrajectoryError::Trip(
+            t.ok().and_then(|t| t.clone()).unwrap_or(Trip::FtLost("the safety watch ended".into())),
+        )),
+    }
+}
+
+/// Transit to `t`'s start, tare, then run and record its stages. The recording is begun.
+async fn run_trajectory(
+    robot: &mut Robot,
+    ctx: &Ctx<'_>,
+    t: &Trajectory,
+    transit: Option<Move>,
+) -> Result<(MovesLog, TrajStats), TrajectoryError> {
+    let mut trips = ctx.streams.trips();
+    if let Some(transit) = transit {
+        guarded(&mut trips, robot.run_moves(std::slice::from_ref(&transit))).await?;
+    }
+    // Tare at approach height, off the gel; the stream keeps flowing meanwhile.
+    if ctx.tare_samples > 0 {
+        match ctx
+            .clock
+            .timeout(ctx.tare_timeout, ctx.streams.tare(ctx.tare_samples))
+            .await
+        {
+            Ok(Ok(r)) => {
+                tracing::debug!(
+                    "{}: tared over {} samples, bias F = {:.4?} N, noise σ = {:.4?}",
+                    t.id,
+                    r.wrench.n,
+                    &r.wrench.mean[..3],
+                    &r.wrench.std[..3]
+                );
+                // A few samples' margin: every sample a frame after `Begin` is paired with
+                // comes after the new bias took effect.
+                ctx.clock.sleep(Duration::from_millis(10)).await;
+            }
+            Ok(Err(e)) => {
+                return Err(TrajectoryError::Trip(Trip::FtLost(format!(
+                    "tare failed: {e}"
+                ))));
+            }
+            Err(_) => {
+                return Err(TrajectoryError::Trip(Trip::FtStalled {
+                    after_ms: ctx.tare_timeout.as_secs_f64() * 1e3,
+                }));
+            }
+        }
+    }
+    let _ = ctx.collector.send(CollectCmd::Begin);
+    let mut log = MovesLog::default();
+    for stage in &t.stages {
+        let moves: Vec<Move> = stage_moves(t, stage).into_iter().map(|(m, _)| m).collect();
+        let t0 = ctx.clock.now_ns();
+        let _ = ctx.collector.send(CollectCmd::Stage {
+            t_ns: t0,
+            stage: stage.name,
+        });
+        ctx.stage_tx.send_replace(Some((t.id.clone(), stage.name)));
+        guarded(&mut trips, robot.run_moves_logged(&moves, &mut log)).await?;
+    }
+    let t_end_ns = log
+        .samples
+        .last()
+        .map_or_else(|| ctx.clock.now_ns(), |s| s.state.t_host_ns);
+    let (reply, rx) = oneshot::channel();
+    let _ = ctx.collector.send(CollectCmd::End { t_end_ns, reply });
+    // The last frames and samples are still coming: a stream that stalls now fails it too.
+    let stats = tokio::select! {
+        r = rx => r
+            .map_err(|_| TrajectoryError::Record("the collector stopped".into()))?
+            .map_err(TrajectoryError::Record)?,
+        t = trips.wait_for(|t| t.is_some()) => {
+            return Err(TrajectoryError::Trip(
+                t.ok().and_then(|t| t.clone()).unwrap_or(Trip::FtLost("the safety watch ended".into())),
+            ));
+        }
+    };
+    Ok((log, stats))
+}
+
+/// Stop the collector's writing of the open trajectory.
+async fn abort_collector(collector: &mpsc::UnboundedSender<CollectCmd>) {
+    let (reply, rx) = oneshot::channel();
+    if collector.send(CollectCmd::Abort { reply }).is_ok() {
+        let _ = rx.await;
+    }
+}
+
+/// Move straight up (surface normal) from wherever the arm is to the approach height, keeping
+/// its orientation. Refused when the target leaves the envelope.
+async fn retract(
+    robot: &mut Robot,
+    config: &RigConfig,
+    plan: &Plan,
+    label: &str,
+) -> anyhow::Result<()> {
+    let here = robot
+        .state()
+        .map(|s| s.actual_tcp_pose)
+        .context("no robot state to retract from")?;
+    let frame = plan.surface_frame;
+    let mut local = pose::pose_trans(&pose::pose_inv(&frame), &here);
+    let approach = config.plan.approach_height_mm * 1e-3;
+    if local.z >= approach - 1e-6 {
+        return Ok(());
+    }
+    local.z = approach;
+    let target = pose::pose_trans(&frame, &local);
+    if !config
+        .safety
+        .envelope
+        .contains([target.x, target.y, target.z])
+    {
+        bail!(
+            "the retract target {:?} is outside the safety envelope; jog the arm up by hand",
+            target.to_array()
+        );
+    }
+    robot
+        .run_moves(&[Move {
+            label: format!("{label}/retract"),
+            pose: target,
+            speed_m_s: config.plan.up.speed_mm_s * 1e-3,
+            accel_m_s2: config.plan.up.accel_mm_s2 * 1e-3,
+        }])
+        .await?;
+    Ok(())
+}
+
+/// Records trajectory `t`: the transit from wherever the arm is (`home` when the robot has not
+/// reported yet) to its start, the tare, its stages and its file; then compares its path with
+/// the plan.
+pub(super) async fn record(
+    robot: &mut Robot,
+    ctx: &Ctx<'_>,
+    t: &Trajectory,
+    home: Pose,
+) -> Result<TrajectoryOutcome, TrajectoryError> {
+    let wall_start = std::time::Instant::now();
+    let start = t.stages[0].waypoints[0];
+    let here = robot.state().map(|s| s.actual_tcp_pose).unwrap_or(home);
+    let transit = (pose::translation_distance(&here, &start) > 1e-6
+        || pose::rotation_distance(&here, &start) > 1e-6)
+        .then(|| Move {
+            label: format!("{}/transit", t.id),
+            pose: start,
+            speed_m_s: ctx.config.plan.up.speed_mm_s * 1e-3,
+            accel_m_s2: ctx.config.plan.up.accel_mm_s2 * 1e-3,
+        });
+    ctx.rec
+        .begin(&t.id)
+        .await
+        .map_err(|e| TrajectoryError::Record(e.to_string()))?;
+    let (log, stats) = run_trajectory(robot, ctx, t, transit).await?;
+    let counts = ctx
+        .rec
+        .finish(stats.frames_dropped)
+        .await
+        .map_err(|e| TrajectoryError::Record(e.to_string()))?;
+    let mut outcome = assess(ctx.plan, t, &log);
+    outcome.poses_recorded = counts.poses;
+    outcome.wall_time_s = wall_start.elapsed().as_secs_f64();
+    outcome.stats = stats;
+    Ok(outcome)
+}
+
+/// Trajectory `t` failed with `e`: stop writing it, mark it failed in the manifest (its partial
+/// file is removed), then stop, recover and retract the arm ([`after_failure`]). Returns why
+/// the run must stop, if it must.
+pub(super) async fn fail(
+    robot: &mut Robot,
+    ctx: &Ctx<'_>,
+    t: &Trajectory,
+    e: &TrajectoryError,
+    bar: &ProgressBar,
+) -> Option<String> {
+    abort_collector(ctx.collector).await;
+    let reason = format!("{}: {}", t.id, e.reason());
+    tracing::error!("trajectory {reason}");
+    bar.suspend(|| eprintln!("trajectory {reason}"));
+    if let Err(ae) = ctx.rec.abort(&e.reason()).await {
+        tracing::error!("trajectory {}: could not mark it failed: {ae}", t.id);
+    }
+    after_failure(robot, ctx, t, e).await
+}
+
+/// After a failed trajectory: stop and retract the arm as far as it is safe, and say whether
+/// the run must stop (and why).
+pub(super) async fn after_failure(
+    robot: &mut Robot,
+    ctx: &Ctx<'_>,
+    t: &Trajectory,
+    e: &TrajectoryError,
+) -> Option<String> {
+    let continue_ok = ctx.config.safety.on_failure == OnFailure::Continue;
+    match e {
+        TrajectoryError::Trip(trip) => {
+            if let Err(se) = robot.stop().await {
+                tracing::error!("{}: stopping the arm: {se}", t.id);
+            }
+            if let Err(re) = retract(robot, ctx.config, ctx.plan, &t.id).await {
+                return Some(format!(
+                    "{}: the arm could not be retracted after the stop ({re}); inspect the rig",
+                    t.id
+                ));
+            }
+            let left = ctx.streams.clear_trip();
+            if trip.is_fatal() || left.is_some() {
+                return Some(format!(
+                    "{}: {}; nothing more can be recorded",
+                    t.id,
+                    left.as_ref().unwrap_or(trip)
+                ));
+            }
+            (!continue_ok).then(|| format!("{}: safety.on_failure = \"stop\"", t.id))
+        }
+        TrajectoryError::Motion(_) => {
+            let safety_stop = robot.state().is_some_and(|s| !s.safety_ok());
+            if safety_stop && !continue_ok {
+                // UR: always inspect the cause of a protective stop before unlocking it. The
+                // rig does not unlock it on the operator's behalf unless told to continue.
+                return Some(format!(
+                    "{}: the robot is in a safety stop, possibly touching the gel; inspect the \
+                     cause, unlock it on the teach pendant, jog the arm up, then --resume",
+                    t.id
+                ));
+            }
+            // Recover (unlock a protective stop once UR's 5 s delay has passed, restart the
+            // program), then leave the gel before anything else moves.
+            let mut attempt = 0;
+            while let Err(re) = robot.recover().await {
+                attempt += 1;
+                if attempt > 8 {
+                    return Some(format!("{}: recovery failed: {re}", t.id));
+                }
+                tracing::info!(
+                    "{}: recovery not possible yet ({re}); retrying in 1 s",
+                    t.id
+                );
+                ctx.clock.sleep(Duration::from_secs(1)).await;
+            }
+            if let Err(re) = retract(robot, ctx.config, ctx.plan, &t.id).await {
+                return Some(format!(
+                    "{}: the arm could not be retracted after recovery ({re}); inspect the rig",
+                    t.id
+                ));
+            }
+            // A stream that died meanwhile ends the run.
+            if let Some(trip) = ctx.streams.clear_trip() {
+                return Some(format!("{}: {trip}; nothing more can be recorded", t.id));
+            }
+            (!continue_ok).then(|| format!("{}: safety.on_failure = \"stop\"", t.id))
+        }
+        TrajectoryError::Record(r) => {
+            // The arm finished its stages (a recording error shows at the end) or was stopped
+            // by the robot's own error; make sure it is off the gel.
+            let _ = retract(robot, ctx.config, ctx.plan, &t.id).await;
+            Some(format!("{}: the recording failed ({r})", t.id))
+        }
+    }
+}
