@@ -14,10 +14,9 @@ use std::fs::{self, File, OpenOptions};
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-
 use super::channels::{self, CHANNELS, Record};
-use crate::durable::sync_dir;
 use super::manifest::Counts;
+use crate::durable::sync_dir;
 
 /// File name of a complete trajectory.
 pub fn final_name(id: &str) -> String {

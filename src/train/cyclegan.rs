@@ -13,9 +13,8 @@ use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
-use super::data::{
-    ImageSpec, LabelledSet, Rng, Trajectory, UnlabelledSet, images_to_tensor, tensor_to_images,
-};
+use super::batch::{Rng, images_to_tensor, tensor_to_images};
+use super::data::{ImageSpec, LabelledSet, Trajectory, UnlabelledSet};
 use super::nn::{Discriminator, GanShape, Generator, l1, lsgan};
 
 const INFO: &str = "translator.json";

@@ -6,7 +6,8 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use super::data::{EvalSet, ImageSpec, Rng, Sequence, Split, Trajectory, UnlabelledSet};
+use super::batch::{Rng, Sequence};
+use super::data::{EvalSet, ImageSpec, Split, Trajectory, UnlabelledSet};
 use super::force::ForceModel;
 use super::metrics::{self, AxisScores};
 use super::report::{FidRow, Row};

@@ -11,9 +11,8 @@ use burn::store::{BurnpackStore, ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
-use super::data::{
-    ImageSpec, LabelledSet, Rng, Sequence, Trajectory, images_to_tensor, sample_sequences,
-};
+use super::batch::{Rng, Sequence, images_to_tensor, sample_sequences};
+use super::data::{ImageSpec, LabelledSet, Trajectory};
 use super::nn::{Depth, ForceNet, ForceShape, gamma_l1};
 
 pub const MODEL_INFO: &str = "model.json";

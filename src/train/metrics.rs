@@ -153,7 +153,7 @@ pub fn kid(
     let k = |x: &[f64], y: &[f64]| {
         (x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>() / d as f64 + 1.0).powi(3)
     };
-    let mut rng = super::data::Rng(seed);
+    let mut rng = super::batch::Rng(seed);
     let mut pick = |n: usize| {
         let mut idx: Vec<usize> = (0..n).collect();
         rng.shuffle(&mut idx);
@@ -279,7 +279,7 @@ mod tests {
 
     #[test]
     fn kid_is_near_zero_for_one_distribution_and_grows_with_a_shift() {
-        let mut rng = super::super::data::Rng(3);
+        let mut rng = super::super::batch::Rng(3);
         let mut gauss = |shift: f64| -> Vec<Vec<f64>> {
             (0..200)
                 .map(|_| {

@@ -1,9 +1,9 @@
 //! The TransForce trainer: a labelled source-sensor dataset and an unlabelled target-sensor
 //! dataset in, a force model for the target sensor out, with the paper's evaluation.
 //!
-//! - [`data`]: recorded runs and prepared datasets, the decode cache, sequences (T frames in time
-//!   order, K per trajectory), the seen/unseen split; types that keep target forces out of
-//!   training.
+//! - [`batch`]: sequences (T frames in time order, K per trajectory) and image tensors.
+//! - [`data`]: recorded runs and prepared datasets, the decode cache, the seen/unseen split;
+//!   types that keep target forces out of training.
 //! - [`modality`]: R+M (as captured), R (markers inpainted, Telea 2004), M (markers only).
 //! - [`cyclegan`]: the translator of `rig train translate`.
 //! - [`force`]: the force model of `rig train force` (encoder + LSTM or the no-LSTM control,
@@ -14,6 +14,7 @@
 //!
 //! The commands themselves are in `crate::cli::train` and `crate::cli::demo`.
 
+pub mod batch;
 pub mod cyclegan;
 pub mod data;
 pub mod demo;

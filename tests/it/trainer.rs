@@ -3,8 +3,9 @@
 //! seeds make runs repeatable.
 
 use burn::tensor::Tensor;
+use rig::train::batch::{Rng, images_to_tensor};
 use rig::train::cyclegan::{CycleGan, TranslateConfig};
-use rig::train::data::{ImageSpec, LabelledSet, Rng, Trajectory, images_to_tensor};
+use rig::train::data::{ImageSpec, LabelledSet, Trajectory};
 use rig::train::eval::eval_windows;
 use rig::train::force::{self, ForceConfig, ForceModel};
 use rig::train::modality::Modality;
@@ -221,11 +222,11 @@ fn without_an_lstm_each_frame_is_predicted_alone() {
         let dir = tempfile::tempdir().unwrap();
         force::train(&set, &small_force(lstm, 1), "x", dir.path(), false, false).unwrap();
         let m = ForceModel::load(dir.path()).unwrap();
-        let a = rig::train::data::Sequence {
+        let a = rig::train::batch::Sequence {
             traj: 0,
             frames: vec![0, 1, 2, 6],
         };
-        let b = rig::train::data::Sequence {
+        let b = rig::train::batch::Sequence {
             traj: 0,
             frames: vec![3, 4, 5, 6],
         };
