@@ -10,6 +10,7 @@
 //! the simulated hardware lives in `hardware-mocks`.
 
 pub mod camera;
+pub mod chart;
 pub mod cli;
 pub mod dataset;
 pub mod durable;

@@ -4,6 +4,8 @@
 use std::path::Path;
 
 use plotters::prelude::*;
+
+use crate::chart;
 use serde::{Deserialize, Serialize};
 
 use super::metrics;
@@ -135,55 +137,54 @@ pub fn plot_pred_vs_true(
     pred: &[[f64; 3]],
     truth: &[[f64; 3]],
 ) -> anyhow::Result<()> {
-    let root = SVGBackend::new(path, (1200, 440)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let root = root.titled(title, ("sans-serif", 18))?;
-    let panels = root.split_evenly((1, 3));
-    for (a, panel) in panels.iter().enumerate() {
-        let pts: Vec<(f64, f64)> = truth
-            .iter()
-            .zip(pred)
-            .map(|(t, p)| (t[a], p[a]))
-            .filter(|(x, y)| x.is_finite() && y.is_finite())
-            .collect();
-        let (mut lo, mut hi) = pts
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), (x, y)| {
-                (l.min(*x).min(*y), h.max(*x).max(*y))
-            });
-        if !(lo.is_finite() && hi.is_finite()) {
-            (lo, hi) = (-1.0, 1.0);
+    chart::svg(path, (1200, 440), |root| {
+        let root = root.titled(title, ("sans-serif", 18))?;
+        let panels = root.split_evenly((1, 3));
+        for (a, panel) in panels.iter().enumerate() {
+            let pts: Vec<(f64, f64)> = truth
+                .iter()
+                .zip(pred)
+                .map(|(t, p)| (t[a], p[a]))
+                .filter(|(x, y)| x.is_finite() && y.is_finite())
+                .collect();
+            let (mut lo, mut hi) = pts
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), (x, y)| {
+                    (l.min(*x).min(*y), h.max(*x).max(*y))
+                });
+            if !(lo.is_finite() && hi.is_finite()) {
+                (lo, hi) = (-1.0, 1.0);
+            }
+            if hi - lo < 1e-9 {
+                (lo, hi) = (lo - 0.5, hi + 0.5);
+            }
+            let pad = 0.05 * (hi - lo);
+            let (xs, ys): (Vec<f64>, Vec<f64>) = pts.iter().copied().unzip();
+            let caption = format!(
+                "{}: MAE {} N, R² {}",
+                metrics::AXES[a],
+                num(metrics::mae(&ys, &xs)),
+                num(metrics::r2(&ys, &xs))
+            );
+            let mut chart = ChartBuilder::on(panel)
+                .caption(caption, ("sans-serif", 15))
+                .margin(10)
+                .x_label_area_size(36)
+                .y_label_area_size(48)
+                .build_cartesian_2d(lo - pad..hi + pad, lo - pad..hi + pad)?;
+            chart
+                .configure_mesh()
+                .x_desc("true force (N)")
+                .y_desc("predicted force (N)")
+                .draw()?;
+            chart.draw_series(LineSeries::new([(lo, lo), (hi, hi)], BLACK.mix(0.5)))?;
+            chart.draw_series(
+                pts.iter()
+                    .map(|p| Circle::new(*p, 2, BLUE.mix(0.4).filled())),
+            )?;
         }
-        if hi - lo < 1e-9 {
-            (lo, hi) = (lo - 0.5, hi + 0.5);
-        }
-        let pad = 0.05 * (hi - lo);
-        let (xs, ys): (Vec<f64>, Vec<f64>) = pts.iter().copied().unzip();
-        let caption = format!(
-            "{}: MAE {} N, R² {}",
-            metrics::AXES[a],
-            num(metrics::mae(&ys, &xs)),
-            num(metrics::r2(&ys, &xs))
-        );
-        let mut chart = ChartBuilder::on(panel)
-            .caption(caption, ("sans-serif", 15))
-            .margin(10)
-            .x_label_area_size(36)
-            .y_label_area_size(48)
-            .build_cartesian_2d(lo - pad..hi + pad, lo - pad..hi + pad)?;
-        chart
-            .configure_mesh()
-            .x_desc("true force (N)")
-            .y_desc("predicted force (N)")
-            .draw()?;
-        chart.draw_series(LineSeries::new([(lo, lo), (hi, hi)], BLACK.mix(0.5)))?;
-        chart.draw_series(
-            pts.iter()
-                .map(|p| Circle::new(*p, 2, BLUE.mix(0.4).filled())),
-        )?;
-    }
-    root.present()?;
-    Ok(())
+        Ok(())
+    })
 }
 
 #[cfg(test)]

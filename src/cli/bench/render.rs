@@ -12,6 +12,8 @@ use crate::simrig::sim::optics::{ImageEffects, render};
 use anyhow::Context;
 use clap::Args;
 use plotters::prelude::*;
+
+use crate::chart;
 use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
 
@@ -148,48 +150,41 @@ pub fn run(args: &RenderBenchArgs) -> anyhow::Result<()> {
 fn plot(results: &[RenderResult], path: &std::path::Path) -> anyhow::Result<()> {
     let sets = effect_sets();
     let max_fps = results.iter().map(|r| r.fps).fold(1.0, f64::max) * 1.1;
-    let root = SVGBackend::new(path, (900, 480)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption("GelSight renderer: frames per second", ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0f64..sets.len() as f64, 0f64..max_fps)?;
-    chart
-        .configure_mesh()
-        .x_labels(sets.len())
-        .x_label_formatter(&|x| {
-            let i = x.floor() as usize;
-            sets.get(i).map_or(String::new(), |(n, _)| (*n).to_string())
-        })
-        .y_desc("frames per second")
-        .draw()?;
-    for (k, (w, colour)) in [(320u32, BLUE), (640, RED)].into_iter().enumerate() {
-        let bars: Vec<_> = sets
-            .iter()
-            .enumerate()
-            .filter_map(|(i, (name, _))| {
-                let r = results
-                    .iter()
-                    .find(|r| r.effects == *name && r.width == w)?;
-                let x0 = i as f64 + 0.1 + 0.4 * k as f64;
-                Some(Rectangle::new(
-                    [(x0, 0.0), (x0 + 0.38, r.fps)],
-                    colour.filled(),
-                ))
-            })
-            .collect();
+    chart::svg(path, (900, 480), |root| {
+        let mut chart = chart::builder(root, "GelSight renderer: frames per second")
+            .build_cartesian_2d(0f64..sets.len() as f64, 0f64..max_fps)?;
         chart
-            .draw_series(bars)?
-            .label(if w == 320 { "320 × 240" } else { "640 × 480" })
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 10, y + 5)], colour.filled()));
-    }
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE)
-        .draw()?;
-    root.present()?;
-    Ok(())
+            .configure_mesh()
+            .x_labels(sets.len())
+            .x_label_formatter(&|x| {
+                let i = x.floor() as usize;
+                sets.get(i).map_or(String::new(), |(n, _)| (*n).to_string())
+            })
+            .y_desc("frames per second")
+            .draw()?;
+        for (k, (w, colour)) in [(320u32, BLUE), (640, RED)].into_iter().enumerate() {
+            let bars: Vec<_> = sets
+                .iter()
+                .enumerate()
+                .filter_map(|(i, (name, _))| {
+                    let r = results
+                        .iter()
+                        .find(|r| r.effects == *name && r.width == w)?;
+                    let x0 = i as f64 + 0.1 + 0.4 * k as f64;
+                    Some(Rectangle::new(
+                        [(x0, 0.0), (x0 + 0.38, r.fps)],
+                        colour.filled(),
+                    ))
+                })
+                .collect();
+            chart
+                .draw_series(bars)?
+                .label(if w == 320 { "320 × 240" } else { "640 × 480" })
+                .legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 10, y + 5)], colour.filled())
+                });
+        }
+        chart::legend(&mut chart)?;
+        Ok(())
+    })
 }

@@ -14,6 +14,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use plotters::prelude::*;
+
+use crate::chart;
 use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
 
@@ -100,40 +102,31 @@ fn plot(s: &RunSummary, path: &std::path::Path) -> anyhow::Result<()> {
     }
     let x_max = (cum.len() as f64).max(240.0);
     let y_max = acc.max(FULL_RUN_GOAL_S) * 1.1;
-    let root = SVGBackend::new(path, (900, 480)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
+    chart::svg(path, (900, 480), |root| {
+        let mut chart = chart::builder(
+            root,
             "rig run on the simulated rig: cumulative wall-clock time",
-            ("sans-serif", 20),
         )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
         .build_cartesian_2d(0f64..x_max, 0f64..y_max)?;
-    chart
-        .configure_mesh()
-        .x_desc("trajectories recorded")
-        .y_desc("wall-clock time, s")
-        .draw()?;
-    chart
-        .draw_series(LineSeries::new(cum, BLUE.stroke_width(2)))?
-        .label("measured")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
-    chart
-        .draw_series(LineSeries::new(
-            vec![(0.0, 0.0), (240.0, FULL_RUN_GOAL_S)],
-            RED.stroke_width(1),
-        ))?
-        .label("goal: 240 trajectories in 3 min")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE)
-        .draw()?;
-    root.present()?;
-    Ok(())
+        chart
+            .configure_mesh()
+            .x_desc("trajectories recorded")
+            .y_desc("wall-clock time, s")
+            .draw()?;
+        chart
+            .draw_series(LineSeries::new(cum, BLUE.stroke_width(2)))?
+            .label("measured")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        chart
+            .draw_series(LineSeries::new(
+                vec![(0.0, 0.0), (240.0, FULL_RUN_GOAL_S)],
+                RED.stroke_width(1),
+            ))?
+            .label("goal: 240 trajectories in 3 min")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        chart::legend(&mut chart)?;
+        Ok(())
+    })
 }
 
 pub fn run(args: &RunBenchArgs) -> anyhow::Result<()> {

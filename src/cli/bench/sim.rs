@@ -170,6 +170,8 @@ pub fn table(rows: &[SimBenchRow]) -> String {
 /// Writes the error-against-time plot (log-log SVG).
 pub fn plot(rows: &[SimBenchRow], path: &Path) -> anyhow::Result<()> {
     use plotters::prelude::*;
+
+    use crate::chart;
     // Exact results (Hertz against itself, the finest layer grid) sit on a floor.
     const FLOOR: f64 = 1e-5;
     let pts = |r: &SimBenchRow| (r.ms_per_frame.max(1e-4), r.rel_error.max(FLOOR));
@@ -181,49 +183,37 @@ pub fn plot(rows: &[SimBenchRow], path: &Path) -> anyhow::Result<()> {
         tmax = tmax.max(t);
         emax = emax.max(e);
     }
-    let root = SVGBackend::new(path, (800, 560)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "rig bench sim: sphere R = 4 mm, d = 0.5 mm",
-            ("sans-serif", 20),
-        )
-        .margin(16)
-        .x_label_area_size(48)
-        .y_label_area_size(64)
-        .build_cartesian_2d(
-            (tmin / 2.0..tmax * 2.0).log_scale(),
-            (FLOOR / 2.0..emax * 2.0).log_scale(),
-        )?;
-    chart
-        .configure_mesh()
-        .x_desc("time per frame (ms)")
-        .y_desc("relative force error")
-        .draw()?;
-    let models = ["hertz", "winkler", "half-space", "layer-thick", "layer"];
-    for (i, m) in models.iter().enumerate() {
-        let colour = Palette99::pick(i).to_rgba();
-        let series: Vec<(f64, f64)> = rows.iter().filter(|r| r.model == *m).map(pts).collect();
-        if series.is_empty() {
-            continue;
-        }
+    chart::svg(path, (800, 560), |root| {
+        let mut chart = chart::builder(root, "rig bench sim: sphere R = 4 mm, d = 0.5 mm")
+            .build_cartesian_2d(
+                (tmin / 2.0..tmax * 2.0).log_scale(),
+                (FLOOR / 2.0..emax * 2.0).log_scale(),
+            )?;
         chart
-            .draw_series(LineSeries::new(series.clone(), colour.stroke_width(2)))?
-            .label(*m)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
-        chart.draw_series(
-            series
-                .into_iter()
-                .map(|p| Circle::new(p, 4, colour.filled())),
-        )?;
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()?;
-    root.present()?;
-    Ok(())
+            .configure_mesh()
+            .x_desc("time per frame (ms)")
+            .y_desc("relative force error")
+            .draw()?;
+        let models = ["hertz", "winkler", "half-space", "layer-thick", "layer"];
+        for (i, m) in models.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            let series: Vec<(f64, f64)> = rows.iter().filter(|r| r.model == *m).map(pts).collect();
+            if series.is_empty() {
+                continue;
+            }
+            chart
+                .draw_series(LineSeries::new(series.clone(), colour.stroke_width(2)))?
+                .label(*m)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+            chart.draw_series(
+                series
+                    .into_iter()
+                    .map(|p| Circle::new(p, 4, colour.filled())),
+            )?;
+        }
+        chart::legend(&mut chart)?;
+        Ok(())
+    })
 }
 
 pub fn run(args: &SimBenchArgs) -> anyhow::Result<()> {

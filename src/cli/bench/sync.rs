@@ -237,56 +237,50 @@ fn label(r: &Row) -> String {
 
 fn plot(rows: &[Row], path: &std::path::Path) -> anyhow::Result<()> {
     use plotters::prelude::*;
-    let root = SVGBackend::new(path, (800, 500)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let xmax = rows.iter().map(|r| r.us_per_frame).fold(0.0, f64::max) * 1.3 + 1e-3;
-    let ymin = rows
-        .iter()
-        .map(|r| r.rms_n)
-        .fold(f64::INFINITY, f64::min)
-        .max(1e-9)
-        / 3.0;
-    let ymax = rows.iter().map(|r| r.rms_n).fold(0.0, f64::max).max(1e-8) * 3.0;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "rig bench sync: force error vs time per frame",
-            ("sans-serif", 20),
-        )
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
-        .build_cartesian_2d(0.0..xmax, (ymin..ymax).log_scale())?;
-    chart
-        .configure_mesh()
-        .x_desc("pairing time per frame (µs)")
-        .y_desc("RMS force error (N)")
-        .draw()?;
-    for r in rows {
-        let color = match r.method {
-            InterpMethod::Nearest => RED,
-            InterpMethod::Linear => BLUE,
-            InterpMethod::Cubic => GREEN,
-        };
-        let p = (r.us_per_frame, r.rms_n.max(ymin));
-        if r.drift {
-            chart.draw_series(std::iter::once(Circle::new(p, 6, color.filled())))?;
-        } else if r.device_drift_ppm < 0.0 {
-            chart.draw_series(std::iter::once(TriangleMarker::new(
-                p,
-                6,
-                color.stroke_width(2),
+
+    use crate::chart;
+    chart::svg(path, (800, 500), |root| {
+        let xmax = rows.iter().map(|r| r.us_per_frame).fold(0.0, f64::max) * 1.3 + 1e-3;
+        let ymin = rows
+            .iter()
+            .map(|r| r.rms_n)
+            .fold(f64::INFINITY, f64::min)
+            .max(1e-9)
+            / 3.0;
+        let ymax = rows.iter().map(|r| r.rms_n).fold(0.0, f64::max).max(1e-8) * 3.0;
+        let mut chart = chart::builder(root, "rig bench sync: force error vs time per frame")
+            .build_cartesian_2d(0.0..xmax, (ymin..ymax).log_scale())?;
+        chart
+            .configure_mesh()
+            .x_desc("pairing time per frame (µs)")
+            .y_desc("RMS force error (N)")
+            .draw()?;
+        for r in rows {
+            let color = match r.method {
+                InterpMethod::Nearest => RED,
+                InterpMethod::Linear => BLUE,
+                InterpMethod::Cubic => GREEN,
+            };
+            let p = (r.us_per_frame, r.rms_n.max(ymin));
+            if r.drift {
+                chart.draw_series(std::iter::once(Circle::new(p, 6, color.filled())))?;
+            } else if r.device_drift_ppm < 0.0 {
+                chart.draw_series(std::iter::once(TriangleMarker::new(
+                    p,
+                    6,
+                    color.stroke_width(2),
+                )))?;
+            } else {
+                chart.draw_series(std::iter::once(Cross::new(p, 6, color.stroke_width(2))))?;
+            }
+            chart.draw_series(std::iter::once(Text::new(
+                label(r),
+                (p.0, p.1),
+                ("sans-serif", 13),
             )))?;
-        } else {
-            chart.draw_series(std::iter::once(Cross::new(p, 6, color.stroke_width(2))))?;
         }
-        chart.draw_series(std::iter::once(Text::new(
-            label(r),
-            (p.0, p.1),
-            ("sans-serif", 13),
-        )))?;
-    }
-    root.present()?;
-    Ok(())
+        Ok(())
+    })
 }
 
 pub fn run(args: &SyncBenchArgs) -> anyhow::Result<()> {

@@ -14,6 +14,8 @@ use anyhow::Context;
 use clap::Args;
 use plotters::prelude::*;
 
+use crate::chart;
+
 use crate::train::data::{self, ImageSpec, LabelledSet};
 use crate::train::eval::eval_windows;
 use crate::train::force::{self, ForceConfig, ForceModel};
@@ -240,42 +242,33 @@ fn plot(curve: &[CurvePoint], path: &Path) -> anyhow::Result<()> {
     let mean = |p: &CurvePoint| (p.mae[0] + p.mae[1] + p.mae[2]) / 3.0;
     let tmax = curve.iter().map(|p| p.seconds).fold(1.0, f64::max);
     let emax = curve.iter().map(mean).fold(1e-3, f64::max);
-    let root = SVGBackend::new(path, (800, 560)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
+    chart::svg(path, (800, 560), |root| {
+        let mut chart = chart::builder(
+            root,
             "rig bench train: held-out force MAE against training time (CPU)",
-            ("sans-serif", 20),
         )
-        .margin(16)
-        .x_label_area_size(48)
-        .y_label_area_size(64)
         .build_cartesian_2d(0.0..tmax * 1.05, 0.0..emax * 1.1)?;
-    chart
-        .configure_mesh()
-        .x_desc("training time (s)")
-        .y_desc("mean MAE over Fx, Fy, Fz (N)")
-        .draw()?;
-    let mut names: Vec<&str> = curve.iter().map(|p| p.model.as_str()).collect();
-    names.dedup();
-    for (i, name) in names.iter().enumerate() {
-        let colour = Palette99::pick(i).to_rgba();
-        let pts: Vec<(f64, f64)> = curve
-            .iter()
-            .filter(|p| p.model == *name)
-            .map(|p| (p.seconds, mean(p)))
-            .collect();
         chart
-            .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))?
-            .label(*name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
-        chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, colour.filled())))?;
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()?;
-    root.present()?;
-    Ok(())
+            .configure_mesh()
+            .x_desc("training time (s)")
+            .y_desc("mean MAE over Fx, Fy, Fz (N)")
+            .draw()?;
+        let mut names: Vec<&str> = curve.iter().map(|p| p.model.as_str()).collect();
+        names.dedup();
+        for (i, name) in names.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            let pts: Vec<(f64, f64)> = curve
+                .iter()
+                .filter(|p| p.model == *name)
+                .map(|p| (p.seconds, mean(p)))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))?
+                .label(*name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+            chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, colour.filled())))?;
+        }
+        chart::legend(&mut chart)?;
+        Ok(())
+    })
 }
