@@ -9,7 +9,7 @@ use rig_core::config::{CameraKind, ForceSensorKind, RigConfig};
 use rig_core::indenter::Indenter;
 use rig_core::pose::Pose;
 
-use super::RunOptions;
+use super::options::RunOptions;
 use crate::camera::FrameSource;
 use crate::force::{self, FrontEndSettings, FtStream};
 use crate::record::{Manifest, Recorder, RecorderConfig};

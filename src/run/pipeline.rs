@@ -12,9 +12,9 @@ use rig_core::config::RigConfig;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
-use super::RunOptions;
 use super::collector::{self, CollectCmd, CollectorSettings};
 use super::devices::Devices;
+use super::options::RunOptions;
 use super::streams::{StreamSettings, Streams};
 use super::summary::RunSummary;
 use crate::plan::StageName;

@@ -15,6 +15,7 @@
 //! The commands themselves are in `crate::cli::train` and `crate::cli::demo`.
 
 pub mod batch;
+mod config;
 pub mod cyclegan;
 pub mod data;
 pub mod demo;
@@ -25,13 +26,7 @@ pub mod modality;
 pub mod nn;
 pub mod report;
 
-use std::path::Path;
-
-use anyhow::Context;
-use serde::{Deserialize, Serialize};
-
-use data::{ImageSpec, Split};
-use modality::Modality;
+pub use config::{DataConfig, TrainerConfig};
 
 /// A progress bar on stderr (hidden when `show` is false).
 pub fn progress_bar(show: bool, len: u64, what: &str) -> indicatif::ProgressBar {
@@ -47,54 +42,4 @@ pub fn progress_bar(show: bool, len: u64, what: &str) -> indicatif::ProgressBar 
         .progress_chars("=> "),
     );
     bar
-}
-
-/// Image size and split for every trainer command.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct DataConfig {
-    /// Network input size. The paper works at 256 px; 64 × 48 keeps CPU training practical.
-    pub width: u32,
-    pub height: u32,
-    pub split: Split,
-}
-
-impl Default for DataConfig {
-    fn default() -> Self {
-        Self {
-            width: 64,
-            height: 48,
-            split: Split::default(),
-        }
-    }
-}
-
-/// The trainer's TOML configuration (`--config FILE`); every key has a default.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct TrainerConfig {
-    pub data: DataConfig,
-    pub translate: cyclegan::TranslateConfig,
-    pub force: force::ForceConfig,
-}
-
-impl TrainerConfig {
-    pub fn load(path: Option<&Path>) -> anyhow::Result<Self> {
-        match path {
-            None => Ok(Self::default()),
-            Some(p) => {
-                let text = std::fs::read_to_string(p)
-                    .with_context(|| format!("cannot read {}", p.display()))?;
-                toml::from_str(&text)
-                    .with_context(|| format!("{} is not a trainer config", p.display()))
-            }
-        }
-    }
-    pub fn spec(&self, modality: Modality) -> ImageSpec {
-        ImageSpec {
-            width: self.data.width,
-            height: self.data.height,
-            modality,
-        }
-    }
 }
