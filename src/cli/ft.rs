@@ -230,8 +230,8 @@ fn live(a: &LiveArgs, mode: Mode) -> anyhow::Result<()> {
         let mut win_n = 0u64;
         let mut flagged = 0u64;
         loop {
-            let now = clock.now_ns();
-            if now >= end {
+            let now_ns = clock.now_ns();
+            if now_ns >= end {
                 break;
             }
             let s = match clock
@@ -249,14 +249,14 @@ fn live(a: &LiveArgs, mode: Mode) -> anyhow::Result<()> {
             if !s.flags.is_clean() {
                 flagged += 1;
             }
-            let now = clock.now_ns();
-            if mode == Mode::Stream && now - win_start >= 500_000_000 {
-                let rate = win_n as f64 / ((now - win_start) as f64 * 1e-9);
+            let now_ns = clock.now_ns();
+            if mode == Mode::Stream && now_ns - win_start >= 500_000_000 {
+                let rate = win_n as f64 / ((now_ns - win_start) as f64 * 1e-9);
                 if let Some(e) = window.estimate() {
                     print_line(rate, &e, &stream.stats(), a.json)?;
                 }
                 window = BiasEstimator::new();
-                win_start = now;
+                win_start = now_ns;
                 win_n = 0;
             }
         }

@@ -2,8 +2,11 @@
 //!
 //! `hardware_mocks::camera::SimCamera` renders frames at its (imperfect) rate on the shared
 //! clock; this adapter stamps them with the rig's receive time, counts sequence gaps and hands
-//! them out as RGB frames. The device timestamp comes from the camera's own clock and is left
-//! for the sync estimator to map (`capture_t_ns` is `None`), as with any external device.
+//! them out as RGB frames. Each frame keeps the camera's own device timestamp
+//! (`device_ts_ns`; `capture_t_ns` is `None`). In `rig run` the simulated camera's device clock
+//! is the shared clock itself (offset 0, [`super::start`]), as a UVC camera's buffer stamps are
+//! the host's CLOCK_MONOTONIC, so the run pairs frames with the stamp taken as host time
+//! (`DeviceTimebase::HostNanos`); a camera with an offset needs a mapping first.
 //!
 //! What only the simulator knows travels with the frame, in [`Frame::truth`]: the instant the
 //! frame was really captured and, when a truth source is attached ([`SimFrameSource::with_truth`]),

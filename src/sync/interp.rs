@@ -165,14 +165,14 @@ fn hermite(
     a: &TimedWrench,
     b: &TimedWrench,
     after: Option<&TimedWrench>,
-    t: f64,
+    t_ns: f64,
 ) -> Wrench {
     let h = b.t_ns - a.t_ns;
     let (pa, pb) = (a.wrench.to_array(), b.wrench.to_array());
     let slope = |p: &TimedWrench, q: &TimedWrench, k: usize| {
         (q.wrench.to_array()[k] - p.wrench.to_array()[k]) / (q.t_ns - p.t_ns)
     };
-    let s = (t - a.t_ns) / h;
+    let s = (t_ns - a.t_ns) / h;
     let (s2, s3) = (s * s, s * s * s);
     let h00 = 2.0 * s3 - 3.0 * s2 + 1.0;
     let h10 = s3 - 2.0 * s2 + s;

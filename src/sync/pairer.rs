@@ -457,10 +457,10 @@ impl Pairer {
     }
 }
 
-fn nearest_distance(samples: &[TimedWrench], t: f64) -> Option<f64> {
-    let i = samples.partition_point(|s| s.t_ns < t);
-    let a = i.checked_sub(1).map(|j| (t - samples[j].t_ns).abs());
-    let b = samples.get(i).map(|s| (s.t_ns - t).abs());
+fn nearest_distance(samples: &[TimedWrench], t_ns: f64) -> Option<f64> {
+    let i = samples.partition_point(|s| s.t_ns < t_ns);
+    let a = i.checked_sub(1).map(|j| (t_ns - samples[j].t_ns).abs());
+    let b = samples.get(i).map(|s| (s.t_ns - t_ns).abs());
     match (a, b) {
         (Some(a), Some(b)) => Some(a.min(b)),
         (a, b) => a.or(b),
