@@ -40,6 +40,56 @@ fn data(v: u16) -> ServerPackage {
     }
 }
 
+/// The controller's version reply for software `major`.0.0.0.
+fn controller_version(major: u32) -> ServerPackage {
+    ServerPackage::UrControlVersion {
+        major,
+        minor: 0,
+        bugfix: 0,
+        build: 0,
+    }
+}
+
+/// A v2 output setup reply that accepts [`cfg`]'s outputs.
+fn outputs_accepted() -> ServerPackage {
+    ServerPackage::OutputSetup {
+        recipe_id: Some(1),
+        types: types(&[DataType::Double, DataType::Int32]),
+    }
+}
+
+/// An input setup reply that accepts [`cfg`]'s input recipe.
+fn inputs_accepted() -> ServerPackage {
+    ServerPackage::InputSetup {
+        recipe_id: 2,
+        types: types(&[DataType::Int32]),
+    }
+}
+
+/// Feed v2-framed `replies` to `s`, each of which it must take without an error.
+fn feed(s: &mut Session, replies: impl IntoIterator<Item = ServerPackage>) {
+    for r in replies {
+        s.handle_frame(&frame_of(&r, PROTOCOL_V2)).unwrap();
+    }
+}
+
+/// A started session of `c` that took `replies` (v2-framed).
+fn fed(c: SessionConfig, replies: impl IntoIterator<Item = ServerPackage>) -> Session {
+    let mut s = Session::new(c).unwrap();
+    s.start();
+    feed(&mut s, replies);
+    s
+}
+
+/// The v2 replies up to the output setup of an e-Series controller, all accepting.
+fn through_output_setup() -> [ServerPackage; 3] {
+    [
+        ServerPackage::ProtocolVersion { accepted: true },
+        controller_version(5),
+        outputs_accepted(),
+    ]
+}
+
 /// Run a session against scripted replies; returns it and the packages it sent.
 fn handshake(v2: bool, major: u32) -> (Session, Vec<ClientPackage>) {
     let mut s = Session::new(cfg()).unwrap();
@@ -62,10 +112,7 @@ fn handshake(v2: bool, major: u32) -> (Session, Vec<ClientPackage>) {
             recipe_id: v2.then_some(1),
             types: types(&[DataType::Double, DataType::Int32]),
         },
-        ServerPackage::InputSetup {
-            recipe_id: 2,
-            types: types(&[DataType::Int32]),
-        },
+        inputs_accepted(),
         ServerPackage::StartReply { accepted: true },
     ]);
     while let Some(r) = replies.pop_front() {
@@ -89,8 +136,7 @@ fn v2_handshake_on_e_series_streams_at_500_hz() {
         matches!(sent[2], ClientPackage::SetupOutputs { frequency_hz, .. } if frequency_hz == 500.0)
     );
     assert!(std::iter::from_fn(|| s.poll_event()).any(|e| e == SessionEvent::Ready));
-    s.handle_frame(&frame_of(&data(PROTOCOL_V2), PROTOCOL_V2))
-        .unwrap();
+    feed(&mut s, [data(PROTOCOL_V2)]);
     assert!(matches!(s.poll_event(), Some(SessionEvent::Data(_))));
 }
 
@@ -115,19 +161,13 @@ fn unknown_recipe_names_are_refused_before_sending() {
 
 #[test]
 fn not_found_and_in_use_name_the_variable() {
-    let mut s = Session::new(cfg()).unwrap();
-    s.start();
-    for r in [
-        ServerPackage::ProtocolVersion { accepted: true },
-        ServerPackage::UrControlVersion {
-            major: 5,
-            minor: 0,
-            bugfix: 0,
-            build: 0,
-        },
-    ] {
-        s.handle_frame(&frame_of(&r, PROTOCOL_V2)).unwrap();
-    }
+    let mut s = fed(
+        cfg(),
+        [
+            ServerPackage::ProtocolVersion { accepted: true },
+            controller_version(5),
+        ],
+    );
     let r = ServerPackage::OutputSetup {
         recipe_id: Some(1),
         types: vec![FieldType::Known(DataType::Double), FieldType::NotFound],
@@ -135,23 +175,7 @@ fn not_found_and_in_use_name_the_variable() {
     let e = s.handle_frame(&frame_of(&r, PROTOCOL_V2)).unwrap_err();
     assert!(e.to_string().contains("robot_mode"), "{e}");
 
-    let mut s = Session::new(cfg()).unwrap();
-    s.start();
-    for r in [
-        ServerPackage::ProtocolVersion { accepted: true },
-        ServerPackage::UrControlVersion {
-            major: 5,
-            minor: 0,
-            bugfix: 0,
-            build: 0,
-        },
-        ServerPackage::OutputSetup {
-            recipe_id: Some(1),
-            types: types(&[DataType::Double, DataType::Int32]),
-        },
-    ] {
-        s.handle_frame(&frame_of(&r, PROTOCOL_V2)).unwrap();
-    }
+    let mut s = fed(cfg(), through_output_setup());
     let r = ServerPackage::InputSetup {
         recipe_id: 0,
         types: vec![FieldType::InUse],
@@ -171,31 +195,20 @@ fn text_messages_mid_handshake_and_data_before_start_reply() {
     });
     // Before the version is settled the message is v1-framed; after, v2.
     s.handle_frame(&frame_of(&text, PROTOCOL_V1)).unwrap();
-    for r in [
-        ServerPackage::ProtocolVersion { accepted: true },
-        ServerPackage::UrControlVersion {
-            major: 5,
-            minor: 0,
-            bugfix: 0,
-            build: 0,
-        },
-        text.clone(),
-        ServerPackage::OutputSetup {
-            recipe_id: Some(1),
-            types: types(&[DataType::Double, DataType::Int32]),
-        },
-        ServerPackage::InputSetup {
-            recipe_id: 2,
-            types: types(&[DataType::Int32]),
-        },
-        data(PROTOCOL_V2),
-    ] {
-        s.handle_frame(&frame_of(&r, PROTOCOL_V2)).unwrap();
-    }
+    feed(
+        &mut s,
+        [
+            ServerPackage::ProtocolVersion { accepted: true },
+            controller_version(5),
+            text.clone(),
+            outputs_accepted(),
+            inputs_accepted(),
+            data(PROTOCOL_V2),
+        ],
+    );
     assert!(s.is_streaming());
     assert_eq!(s.early_data(), 1);
-    s.handle_frame(&frame_of(&ServerPackage::StartReply { accepted: true }, 2))
-        .unwrap();
+    feed(&mut s, [ServerPackage::StartReply { accepted: true }]);
     let evs: Vec<_> = std::iter::from_fn(|| s.poll_event()).collect();
     assert_eq!(
         evs.iter()
@@ -256,27 +269,11 @@ fn unknown_truncated_and_foreign_frames_are_skipped() {
 
 #[test]
 fn start_refused_is_an_error() {
-    let mut s = Session::new(SessionConfig {
+    let no_inputs = SessionConfig {
         input_recipes: vec![],
         ..cfg()
-    })
-    .unwrap();
-    s.start();
-    for r in [
-        ServerPackage::ProtocolVersion { accepted: true },
-        ServerPackage::UrControlVersion {
-            major: 5,
-            minor: 0,
-            bugfix: 0,
-            build: 0,
-        },
-        ServerPackage::OutputSetup {
-            recipe_id: Some(1),
-            types: types(&[DataType::Double, DataType::Int32]),
-        },
-    ] {
-        s.handle_frame(&frame_of(&r, PROTOCOL_V2)).unwrap();
-    }
+    };
+    let mut s = fed(no_inputs, through_output_setup());
     assert!(matches!(
         s.handle_frame(&frame_of(&ServerPackage::StartReply { accepted: false }, 2)),
         Err(RtdeError::StartRefused { .. })
@@ -292,29 +289,19 @@ fn pause_and_resume_follow_the_replies() {
     assert_eq!(s.poll_transmit(), Some(ClientPackage::Pause));
     assert_eq!(s.phase(), Phase::Pausing);
     // Data the controller sent before it saw the pause is still delivered.
-    s.handle_frame(&frame_of(&data(PROTOCOL_V2), PROTOCOL_V2))
-        .unwrap();
+    feed(&mut s, [data(PROTOCOL_V2)]);
     assert!(matches!(s.poll_event(), Some(SessionEvent::Data(_))));
-    s.handle_frame(&frame_of(
-        &ServerPackage::PauseReply { accepted: true },
-        PROTOCOL_V2,
-    ))
-    .unwrap();
+    feed(&mut s, [ServerPackage::PauseReply { accepted: true }]);
     assert_eq!(s.phase(), Phase::Paused);
     // Data while paused is not ours to use.
-    s.handle_frame(&frame_of(&data(PROTOCOL_V2), PROTOCOL_V2))
-        .unwrap();
+    feed(&mut s, [data(PROTOCOL_V2)]);
     assert_eq!(
         s.poll_event(),
         Some(SessionEvent::Skipped(SkipReason::UnexpectedData))
     );
     assert!(s.resume());
     assert_eq!(s.poll_transmit(), Some(ClientPackage::Start));
-    s.handle_frame(&frame_of(
-        &ServerPackage::StartReply { accepted: true },
-        PROTOCOL_V2,
-    ))
-    .unwrap();
+    feed(&mut s, [ServerPackage::StartReply { accepted: true }]);
     assert!(s.is_streaming());
     assert_eq!(s.poll_event(), Some(SessionEvent::Ready));
 }
@@ -323,10 +310,6 @@ fn pause_and_resume_follow_the_replies() {
 fn a_refused_pause_keeps_streaming() {
     let (mut s, _) = handshake(true, 5);
     assert!(s.pause());
-    s.handle_frame(&frame_of(
-        &ServerPackage::PauseReply { accepted: false },
-        PROTOCOL_V2,
-    ))
-    .unwrap();
+    feed(&mut s, [ServerPackage::PauseReply { accepted: false }]);
     assert!(s.is_streaming());
 }
