@@ -10,7 +10,6 @@ use std::time::Duration;
 use super::dashboard::DashboardError;
 use super::motion::{Fault, FaultRecord, Refusal};
 use super::rtde::RtdeError;
-use super::state;
 
 /// Why a motion call failed. Each says what the operator should do.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -88,29 +87,32 @@ impl MotionError {
     /// controller's recent text messages as a suffix (empty if none).
     pub(super) fn from_fault(rec: FaultRecord, messages: String) -> Self {
         let label = rec.label;
+        // Each mode fault is its own variant (callers match on which stop it was); they share
+        // only the name lookup.
+        let mode = rec.fault.mode_name().unwrap_or_default().to_owned();
         match rec.fault {
             Fault::ProtectiveStop { safety_mode } => Self::ProtectiveStop {
                 label,
                 safety_mode,
-                mode: state::safety_mode_name(safety_mode).into(),
+                mode,
                 messages,
             },
             Fault::EmergencyStop { safety_mode } => Self::EmergencyStop {
                 label,
                 safety_mode,
-                mode: state::safety_mode_name(safety_mode).into(),
+                mode,
                 messages,
             },
             Fault::ProgramStopped { runtime_state } => Self::ProgramStopped {
                 label,
                 runtime_state,
-                state: state::runtime_state_name(runtime_state).into(),
+                state: mode,
                 messages,
             },
             Fault::RobotNotRunning { robot_mode } => Self::RobotNotRunning {
                 label,
                 robot_mode,
-                mode: state::robot_mode_name(robot_mode).into(),
+                mode,
                 messages,
             },
             Fault::Rejected => Self::Rejected { label },
