@@ -131,22 +131,12 @@ impl Session {
     /// Checks every recipe name against the controller's variable table
     /// ([`fields::output_type`], [`fields::input_type`]) before anything is sent.
     pub fn new(cfg: SessionConfig) -> Result<Self, RtdeError> {
-        for n in &cfg.output_names {
-            if fields::output_type(n).is_none() {
-                return Err(RtdeError::UnknownVariable {
-                    kind: RecipeKind::Output,
-                    variable: n.clone(),
-                });
-            }
-        }
-        for n in cfg.input_recipes.iter().flatten() {
-            if fields::input_type(n).is_none() {
-                return Err(RtdeError::UnknownVariable {
-                    kind: RecipeKind::Input,
-                    variable: n.clone(),
-                });
-            }
-        }
+        check_names(RecipeKind::Output, &cfg.output_names, fields::output_type)?;
+        check_names(
+            RecipeKind::Input,
+            cfg.input_recipes.iter().flatten(),
+            fields::input_type,
+        )?;
         Ok(Self {
             cfg,
             phase: Phase::NotStarted,
@@ -177,24 +167,26 @@ impl Session {
     /// Ask the controller to stop sending data ('P'). Only while streaming; returns whether a
     /// pause was queued.
     pub fn pause(&mut self) -> bool {
-        if self.phase != Phase::Streaming {
-            return false;
-        }
-        self.phase = Phase::Pausing;
-        self.transmit.push_back(ClientPackage::Pause);
-        true
+        self.request(Phase::Streaming, Phase::Pausing, ClientPackage::Pause)
     }
 
     /// Start streaming again after a pause ('S', the same recipes). Returns whether a start
     /// was queued.
     pub fn resume(&mut self) -> bool {
-        if self.phase != Phase::Paused {
+        self.request(Phase::Paused, Phase::Start, ClientPackage::Start)
+    }
+
+    /// In phase `from`, queue `pkg` and await its reply in phase `to`; in any other phase do
+    /// nothing and return false.
+    fn request(&mut self, from: Phase, to: Phase, pkg: ClientPackage) -> bool {
+        if self.phase != from {
             return false;
         }
-        self.phase = Phase::Start;
-        self.transmit.push_back(ClientPackage::Start);
+        self.phase = to;
+        self.transmit.push_back(pkg);
         true
     }
+
     pub fn phase_name(&self) -> &'static str {
         self.phase.name()
     }
@@ -407,6 +399,21 @@ impl Session {
             self.phase = Phase::Start;
             self.transmit.push_back(ClientPackage::Start);
         }
+    }
+}
+
+/// The first of `names` that `lookup` (a controller variable table) does not know is an error.
+fn check_names<'a>(
+    kind: RecipeKind,
+    names: impl IntoIterator<Item = &'a String>,
+    lookup: fn(&str) -> Option<DataType>,
+) -> Result<(), RtdeError> {
+    match names.into_iter().find(|n| lookup(n).is_none()) {
+        Some(n) => Err(RtdeError::UnknownVariable {
+            kind,
+            variable: n.clone(),
+        }),
+        None => Ok(()),
     }
 }
 
