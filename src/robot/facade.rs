@@ -29,6 +29,10 @@ use super::rtde::{LinkStatus, RtdeClient, RtdeConfig, RtdeError, RtdeHandle};
 use super::state::RobotState;
 use super::urscript;
 
+/// How long a state may take when one is needed now: the stream runs at 125 to 500 Hz, so
+/// this runs out only when no data comes at all.
+const STATE_TIMEOUT: Duration = Duration::from_secs(2);
+
 /// Index of the command recipe in the RTDE client's input recipes.
 const CMD_RECIPE: usize = 0;
 /// Index of the heartbeat recipe.
@@ -112,11 +116,7 @@ impl Robot {
             prepared: false,
         };
         let s = robot
-            .wait_state(
-                "waiting for the first RTDE state",
-                Duration::from_secs(2),
-                |_| true,
-            )
+            .current_state("waiting for the first RTDE state")
             .await?;
         robot.seq.sync_seq(s.input_cmd_seq);
         Ok(robot)
@@ -202,6 +202,11 @@ impl Robot {
         }
     }
 
+    /// The latest state, waiting for the first one if none has arrived yet.
+    async fn current_state(&self, step: &'static str) -> Result<RobotState, MotionError> {
+        self.wait_state(step, STATE_TIMEOUT, |_| true).await
+    }
+
     async fn wait_link_up(&self, timeout: Duration) -> Result<(), String> {
         let mut rx = self.rtde.link();
         let r = self
@@ -230,9 +235,7 @@ impl Robot {
     /// Power on, release the brakes, wait for RUNNING, upload the control program and wait
     /// until it plays. Each step has a timeout and an error that says what to check.
     pub async fn prepare(&mut self) -> Result<(), MotionError> {
-        let s = self
-            .wait_state("waiting for RTDE state", Duration::from_secs(2), |_| true)
-            .await?;
+        let s = self.current_state("waiting for RTDE state").await?;
         if !s.safety_ok() {
             return Err(MotionError::Prepare {
                 step: "safety check",
@@ -276,9 +279,7 @@ impl Robot {
     /// Stop whatever program runs, upload ours, and wait until it plays and has taken over the
     /// current command seq.
     async fn upload_and_start(&mut self) -> Result<(), MotionError> {
-        let s = self
-            .wait_state("waiting for RTDE state", Duration::from_secs(2), |_| true)
-            .await?;
+        let s = self.current_state("waiting for RTDE state").await?;
         self.seq.sync_seq(s.input_cmd_seq);
         if s.runtime_state == control::runtime_state::PLAYING {
             self.dashboard.stop().await?;
@@ -322,9 +323,7 @@ impl Robot {
     /// again. An error leaves motion blocked.
     pub async fn recover(&mut self) -> Result<(), MotionError> {
         use control::safety_mode::*;
-        let s = self
-            .wait_state("waiting for RTDE state", Duration::from_secs(2), |_| true)
-            .await?;
+        let s = self.current_state("waiting for RTDE state").await?;
         match s.safety_mode {
             NORMAL | REDUCED => {}
             PROTECTIVE_STOP => {
@@ -499,7 +498,7 @@ impl Robot {
                     _ => generation,
                 };
             }
-            let deadline = self.seq.next_deadline_ns().unwrap_or(u64::MAX);
+            let deadline_ns = self.seq.next_deadline_ns().unwrap_or(u64::MAX);
             tokio::select! {
                 // Link changes first: a sample from a new connection must not be judged
                 // before the reconnection is handled.
@@ -541,7 +540,7 @@ impl Robot {
                         return Err(MotionError::LinkLost { label: m.label.clone(), reason: "RTDE client stopped".into() });
                     }
                 },
-                _ = self.clock.sleep_until_ns(deadline) => {
+                _ = self.clock.sleep_until_ns(deadline_ns) => {
                     if let Some(SeqEvent::Fault(rec)) = self.seq.poll_timeout(self.clock.now_ns()) {
                         return Err(self.fault_error(rec));
                     }
@@ -577,12 +576,12 @@ impl Robot {
             return Err(lost(e));
         }
         // A state from the new connection.
-        let t0 = self.clock.now_ns();
+        let t0_ns = self.clock.now_ns();
         let s = self
             .wait_state(
                 "waiting for RTDE state after reconnecting",
                 self.opts.reconnect_timeout,
-                |s| s.t_host_ns >= t0,
+                |s| s.t_host_ns >= t0_ns,
             )
             .await
             .inspect_err(|_| self.seq.abandon())?;

@@ -298,16 +298,16 @@ impl MotionSequencer {
     fn issue(&mut self, label: String, mut cmd: CommandWrite, now_ns: u64) -> CommandWrite {
         self.last_seq = self.last_seq.wrapping_add(1);
         cmd.seq = self.last_seq;
-        let distance = self
+        let distance_m = self
             .last_state
             .map(|s| rig_core::pose::translation_distance(&s.actual_tcp_pose, &cmd.target))
             .unwrap_or(0.0);
-        let predicted = match cmd.kind {
-            CommandKind::MoveL => predicted_duration_s(distance, cmd.speed_m_s, cmd.accel_m_s2),
+        let predicted_s = match cmd.kind {
+            CommandKind::MoveL => predicted_duration_s(distance_m, cmd.speed_m_s, cmd.accel_m_s2),
             _ => 0.0,
         };
         let ack_ns = ns(self.cfg.ack_timeout);
-        let budget_ns = (predicted * self.cfg.move_timeout_factor * 1e9) as u64
+        let budget_ns = (predicted_s * self.cfg.move_timeout_factor * 1e9) as u64
             + ns(self.cfg.move_timeout_margin)
             + ack_ns;
         self.active = Some(Active {

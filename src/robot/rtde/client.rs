@@ -1,10 +1,10 @@
 //! The RTDE client API: what the rest of the rig holds.
 //!
-//! [`RtdeClient`] only starts the reader task and reads what it publishes, so every method
-//! here is cheap and never blocks on the socket; the two that talk to the controller (pause
-//! and resume) hand the request to the task, which owns the session, and wait for its answer
-//! on the clock. [`RtdeHandle`] is split off because input writes come from other tasks (the
-//! robot's heartbeat and command writers) that must not own the client.
+//! [`RtdeClient`] starts the reader task and reads what it publishes, so its getters never
+//! wait on the socket. Pause and resume change the session, which the task owns, so they are
+//! handed to the task and answered on a oneshot (with a clock timeout). Input writes go
+//! through [`RtdeHandle`], a cheap clone, because they come from other tasks (the robot's
+//! heartbeat and its command writes) that must not own the client.
 
 use std::sync::Arc;
 use std::time::Duration;
