@@ -3,7 +3,7 @@
 //! [`MotionSequencer`] is sans-IO in the quinn-proto sense: it is told what the controller
 //! reported ([`MotionSequencer::on_state`]) and what time it is (`now_ns`, from the shared
 //! clock), and it answers with the register writes to make ([`CommandWrite`]) and what happened
-//! ([`SeqEvent`]). The async [`super::Robot`] only moves bytes and waits. So every timing case
+//! ([`SeqEvent`]). The async `Robot` facade only moves bytes and waits. So every timing case
 //! (no ack, a move that never finishes, a protective stop between ack and done) is a unit test
 //! with made-up states.
 //!
