@@ -171,8 +171,8 @@ impl Dashboard {
         }
     }
 
-    /// Send a command whose reply must not be a refusal.
-    async fn checked(&mut self, command: &str, hint: &str) -> Result<String, DashboardError> {
+    /// Send a command whose reply must not be a refusal; `hint` is appended to the refusal.
+    async fn checked(&mut self, command: &str, hint: &str) -> Result<(), DashboardError> {
         let reply = self.command(command).await?;
         if is_refusal(&reply) {
             return Err(DashboardError::Refused {
@@ -181,7 +181,7 @@ impl Dashboard {
                 hint: hint.into(),
             });
         }
-        Ok(reply)
+        Ok(())
     }
 
     pub async fn power_on(&mut self) -> Result<(), DashboardError> {
@@ -190,17 +190,15 @@ impl Dashboard {
             "; check the teach pendant: the robot must be in Remote Control and not in an emergency stop",
         )
         .await
-        .map(drop)
     }
 
     pub async fn power_off(&mut self) -> Result<(), DashboardError> {
-        self.checked("power off", "").await.map(drop)
+        self.checked("power off", "").await
     }
 
     pub async fn brake_release(&mut self) -> Result<(), DashboardError> {
         self.checked("brake release", "; power the robot on first")
             .await
-            .map(drop)
     }
 
     /// Unlock a protective stop. UR refuses this for 5 s after the stop.
@@ -210,17 +208,16 @@ impl Dashboard {
             "; inspect the cause of the stop, wait at least 5 s after it, then retry",
         )
         .await
-        .map(drop)
     }
 
     /// Close the safety popup on the teach pendant (clears the operator-facing error).
     pub async fn close_safety_popup(&mut self) -> Result<(), DashboardError> {
-        self.checked("close safety popup", "").await.map(drop)
+        self.checked("close safety popup", "").await
     }
 
     /// Close an informational popup.
     pub async fn close_popup(&mut self) -> Result<(), DashboardError> {
-        self.checked("close popup", "").await.map(drop)
+        self.checked("close popup", "").await
     }
 
     /// Clear operator-visible errors: both popups; failures are ignored (nothing to close).
@@ -230,13 +227,11 @@ impl Dashboard {
     }
 
     pub async fn play(&mut self) -> Result<(), DashboardError> {
-        self.checked("play", "; load a program first")
-            .await
-            .map(drop)
+        self.checked("play", "; load a program first").await
     }
 
     pub async fn stop(&mut self) -> Result<(), DashboardError> {
-        self.checked("stop", "").await.map(drop)
+        self.checked("stop", "").await
     }
 
     /// The robot mode word from "Robotmode: RUNNING".

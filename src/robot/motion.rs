@@ -3,7 +3,7 @@
 //! [`MotionSequencer`] is sans-IO in the quinn-proto sense: it is told what the controller
 //! reported ([`MotionSequencer::on_state`]) and what time it is (`now_ns`, from the shared
 //! clock), and it answers with the register writes to make ([`CommandWrite`]) and what happened
-//! ([`SeqEvent`]). The async [`super::Robot`] only moves bytes and waits. So every timing case
+//! ([`SeqEvent`]). The async `Robot` facade only moves bytes and waits. So every timing case
 //! (no ack, a move that never finishes, a protective stop between ack and done) is a unit test
 //! with made-up states.
 //!
@@ -87,33 +87,40 @@ pub enum Fault {
     MoveTimeout { after: Duration },
 }
 
+impl Fault {
+    /// The controller's name for the mode or state that caused the fault (`PROTECTIVE_STOP`,
+    /// `STOPPED`, …); `None` for faults of the command itself.
+    pub fn mode_name(&self) -> Option<&'static str> {
+        match *self {
+            Self::ProtectiveStop { safety_mode } | Self::EmergencyStop { safety_mode } => {
+                Some(safety_mode_name(safety_mode))
+            }
+            Self::ProgramStopped { runtime_state } => Some(runtime_state_name(runtime_state)),
+            Self::RobotNotRunning { robot_mode } => Some(robot_mode_name(robot_mode)),
+            Self::Rejected | Self::AckTimeout { .. } | Self::MoveTimeout { .. } => None,
+        }
+    }
+}
+
 impl fmt::Display for Fault {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let name = self.mode_name().unwrap_or_default();
         match self {
-            Self::ProtectiveStop { safety_mode } => write!(
-                f,
-                "safety stop (safety_mode {} {})",
-                safety_mode,
-                safety_mode_name(*safety_mode)
-            ),
-            Self::EmergencyStop { safety_mode } => write!(
-                f,
-                "emergency stop (safety_mode {} {})",
-                safety_mode,
-                safety_mode_name(*safety_mode)
-            ),
-            Self::ProgramStopped { runtime_state } => write!(
-                f,
-                "control program stopped (runtime_state {} {})",
-                runtime_state,
-                runtime_state_name(*runtime_state)
-            ),
-            Self::RobotNotRunning { robot_mode } => write!(
-                f,
-                "robot left RUNNING (robot_mode {} {})",
-                robot_mode,
-                robot_mode_name(*robot_mode)
-            ),
+            Self::ProtectiveStop { safety_mode } => {
+                write!(f, "safety stop (safety_mode {safety_mode} {name})")
+            }
+            Self::EmergencyStop { safety_mode } => {
+                write!(f, "emergency stop (safety_mode {safety_mode} {name})")
+            }
+            Self::ProgramStopped { runtime_state } => {
+                write!(
+                    f,
+                    "control program stopped (runtime_state {runtime_state} {name})"
+                )
+            }
+            Self::RobotNotRunning { robot_mode } => {
+                write!(f, "robot left RUNNING (robot_mode {robot_mode} {name})")
+            }
             Self::Rejected => write!(f, "control program rejected the command"),
             Self::AckTimeout { after } => write!(f, "no acknowledgement after {after:?}"),
             Self::MoveTimeout { after } => write!(f, "move not finished after {after:?}"),
@@ -291,16 +298,16 @@ impl MotionSequencer {
     fn issue(&mut self, label: String, mut cmd: CommandWrite, now_ns: u64) -> CommandWrite {
         self.last_seq = self.last_seq.wrapping_add(1);
         cmd.seq = self.last_seq;
-        let distance = self
+        let distance_m = self
             .last_state
             .map(|s| rig_core::pose::translation_distance(&s.actual_tcp_pose, &cmd.target))
             .unwrap_or(0.0);
-        let predicted = match cmd.kind {
-            CommandKind::MoveL => predicted_duration_s(distance, cmd.speed_m_s, cmd.accel_m_s2),
+        let predicted_s = match cmd.kind {
+            CommandKind::MoveL => predicted_duration_s(distance_m, cmd.speed_m_s, cmd.accel_m_s2),
             _ => 0.0,
         };
         let ack_ns = ns(self.cfg.ack_timeout);
-        let budget_ns = (predicted * self.cfg.move_timeout_factor * 1e9) as u64
+        let budget_ns = (predicted_s * self.cfg.move_timeout_factor * 1e9) as u64
             + ns(self.cfg.move_timeout_margin)
             + ack_ns;
         self.active = Some(Active {
@@ -507,6 +514,23 @@ mod tests {
 
     const MS: u64 = 1_000_000;
 
+    /// A sequencer with move `label` (to [`ok_state`]'s pose) issued at `now_ns`.
+    fn moving(label: &str, now_ns: u64) -> MotionSequencer {
+        let s = ok_state();
+        let mut q = MotionSequencer::new(SequencerConfig::default());
+        q.start_move(label, s.actual_tcp_pose, 0.01, 0.1, &s, now_ns)
+            .unwrap();
+        q
+    }
+
+    /// The fault raised when `s` arrives during a move, if any.
+    fn fault_on(s: &RobotState) -> Option<Fault> {
+        match moving("m", 0).on_state(s, 1) {
+            Some(SeqEvent::Fault(rec)) => Some(rec.fault),
+            _ => None,
+        }
+    }
+
     #[test]
     fn move_is_acked_then_done() {
         let mut q = MotionSequencer::new(SequencerConfig::default());
@@ -555,10 +579,8 @@ mod tests {
 
     #[test]
     fn protective_stop_mid_move_faults_with_label_and_blocks_until_cleared() {
-        let mut q = MotionSequencer::new(SequencerConfig::default());
+        let mut q = moving("p0-d0.2-a030/shear", 0);
         let s = ok_state();
-        q.start_move("p0-d0.2-a030/shear", s.actual_tcp_pose, 0.01, 0.1, &s, 0)
-            .unwrap();
         let mut stopped = with_regs(s, 1, 0, ProgramStatus::Moving);
         stopped.safety_mode = safety_mode::PROTECTIVE_STOP;
         stopped.runtime_state = runtime_state::PAUSED;
@@ -584,31 +606,12 @@ mod tests {
 
     #[test]
     fn emergency_stop_and_program_stop_are_distinguished() {
-        let s = ok_state();
-        let mut q = MotionSequencer::new(SequencerConfig::default());
-        q.start_move("a", s.actual_tcp_pose, 0.01, 0.1, &s, 0)
-            .unwrap();
-        let mut e = s;
+        let mut e = ok_state();
         e.safety_mode = safety_mode::ROBOT_EMERGENCY_STOP;
-        assert!(matches!(
-            q.on_state(&e, 1),
-            Some(SeqEvent::Fault(FaultRecord {
-                fault: Fault::EmergencyStop { .. },
-                ..
-            }))
-        ));
-        let mut q = MotionSequencer::new(SequencerConfig::default());
-        q.start_move("b", s.actual_tcp_pose, 0.01, 0.1, &s, 0)
-            .unwrap();
-        let mut p = s;
+        assert!(matches!(fault_on(&e), Some(Fault::EmergencyStop { .. })));
+        let mut p = ok_state();
         p.runtime_state = runtime_state::STOPPED;
-        assert!(matches!(
-            q.on_state(&p, 1),
-            Some(SeqEvent::Fault(FaultRecord {
-                fault: Fault::ProgramStopped { .. },
-                ..
-            }))
-        ));
+        assert!(matches!(fault_on(&p), Some(Fault::ProgramStopped { .. })));
     }
 
     #[test]
@@ -650,19 +653,11 @@ mod tests {
     #[test]
     fn rejected_command_is_a_fault_and_reissue_uses_a_new_seq() {
         let s = ok_state();
-        let mut q = MotionSequencer::new(SequencerConfig::default());
-        q.start_move("a", s.actual_tcp_pose, 0.01, 0.1, &s, 0)
-            .unwrap();
-        assert!(matches!(
-            q.on_state(&with_regs(s, 1, 1, ProgramStatus::Rejected), 1),
-            Some(SeqEvent::Fault(FaultRecord {
-                fault: Fault::Rejected,
-                ..
-            }))
-        ));
-        let mut q = MotionSequencer::new(SequencerConfig::default());
-        q.start_move("a", s.actual_tcp_pose, 0.01, 0.1, &s, 0)
-            .unwrap();
+        assert_eq!(
+            fault_on(&with_regs(s, 1, 1, ProgramStatus::Rejected)),
+            Some(Fault::Rejected)
+        );
+        let mut q = moving("a", 0);
         let c = q.reissue(&s, 5).unwrap();
         assert_eq!(c.seq, 2);
         assert_eq!(q.active(), Some(("a", 2)));
@@ -674,11 +669,8 @@ mod tests {
 
     #[test]
     fn states_from_before_the_command_are_ignored() {
-        let s = ok_state();
-        let mut q = MotionSequencer::new(SequencerConfig::default());
-        q.start_move("a", s.actual_tcp_pose, 0.01, 0.1, &s, 10 * MS)
-            .unwrap();
-        let mut stale = s;
+        let mut q = moving("a", 10 * MS);
+        let mut stale = ok_state();
         stale.t_host_ns = 9 * MS;
         stale.runtime_state = runtime_state::STOPPED;
         assert_eq!(q.on_state(&stale, 11 * MS), None);
