@@ -13,7 +13,7 @@ use std::time::Duration;
 use rig_core::clock::Clock;
 use rig_core::ft::SampleFlags;
 use rig_core::ft::daq::{DaqParser, STATUS_ADC_FAULT};
-use rig_core::ft::netft::{Arrival, SequenceTracker};
+use rig_core::ft::sequence::{Arrival, SequenceTracker};
 
 use super::{Conditioner, Control, FrontEndSettings, FtError, FtStats, FtStream, RawMap};
 
@@ -56,7 +56,6 @@ pub async fn open(
             let mut parser = DaqParser::new();
             let mut tracker = SequenceTracker::new();
             let mut buf = vec![0u8; 8192];
-            let mut unwrapped: Option<u64> = None;
             'outer: loop {
                 loop {
                     match ctl.try_recv() {
@@ -97,7 +96,8 @@ pub async fn open(
                 parser.push(&buf[..n]);
                 while let Some(f) = parser.next_frame() {
                     let mut flags = SampleFlags::NONE;
-                    match tracker.observe(f.sequence) {
+                    let (arrival, seq) = tracker.observe_unwrapped(f.sequence);
+                    match arrival {
                         Arrival::Duplicate => continue,
                         Arrival::AfterGap { .. } => flags |= SampleFlags::AFTER_GAP,
                         Arrival::Late => flags |= SampleFlags::REORDERED,
@@ -105,16 +105,6 @@ pub async fn open(
                     }
                     if f.saturated_gauges() != 0 {
                         flags |= SampleFlags::GAUGE_SATURATED;
-                    }
-                    let seq = match unwrapped {
-                        None => u64::from(f.sequence),
-                        Some(prev) => {
-                            let d = f.sequence.wrapping_sub(prev as u32) as i32;
-                            prev.wrapping_add_signed(i64::from(d))
-                        }
-                    };
-                    if unwrapped.is_none_or(|p| seq > p) {
-                        unwrapped = Some(seq);
                     }
                     let status = u32::from(f.status & (0x3f | STATUS_ADC_FAULT));
                     if !sink.condition_and_deliver(

@@ -14,7 +14,8 @@ use std::time::Duration;
 
 use rig_core::clock::Clock;
 use rig_core::ft::SampleFlags;
-use rig_core::ft::netft::{Arrival, RDT_PORT, RdtCommand, RdtRecord, RdtRequest, SequenceTracker};
+use rig_core::ft::netft::{RDT_PORT, RdtCommand, RdtRecord, RdtRequest};
+use rig_core::ft::sequence::{Arrival, SequenceTracker};
 use tokio::net::UdpSocket;
 
 use super::{Control, FrontEndSettings, FtError, FtStats, FtStream};
@@ -80,7 +81,6 @@ pub async fn open(
     tokio::spawn(async move {
         let mut tracker = SequenceTracker::new();
         let mut buf = vec![0u8; 2048];
-        let mut unwrapped: Option<u64> = None;
         let mut pending_gap = false;
         loop {
             let recv = clock.timeout(SILENCE_TIMEOUT, sock.recv(&mut buf));
@@ -109,7 +109,7 @@ pub async fn open(
                     };
                     let mut stop = false;
                     for rec in records {
-                        let arrival = tracker.observe(rec.rdt_sequence);
+                        let (arrival, seq) = tracker.observe_unwrapped(rec.rdt_sequence);
                         let mut flags = SampleFlags::NONE;
                         match arrival {
                             Arrival::Duplicate => continue,
@@ -120,17 +120,6 @@ pub async fn open(
                         if pending_gap && arrival != Arrival::Late {
                             flags |= SampleFlags::AFTER_GAP;
                             pending_gap = false;
-                        }
-                        // Unwrap the u32 sequence against the newest seen.
-                        let seq = match unwrapped {
-                            None => u64::from(rec.rdt_sequence),
-                            Some(prev) => {
-                                let d = rec.rdt_sequence.wrapping_sub(prev as u32) as i32;
-                                prev.wrapping_add_signed(i64::from(d))
-                            }
-                        };
-                        if unwrapped.is_none_or(|p| seq > p) {
-                            unwrapped = Some(seq);
                         }
                         let raw = rec.counts.map(f64::from);
                         if !sink.condition_and_deliver(&mut cond, &raw, None, rec.status, flags, t_host_ns, seq) {

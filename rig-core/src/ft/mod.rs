@@ -10,7 +10,7 @@
 //!   N·mm counts / CPT.
 //! - [`netft`]: an ATI Net F/T box over UDP port 49152 (RDT): an 8-byte request starts or
 //!   stops streaming, every 36-byte record carries a `u32` RDT sequence from which
-//!   [`netft::SequenceTracker`] counts lost, reordered and duplicated packets exactly.
+//!   [`sequence::SequenceTracker`] counts lost, reordered and duplicated packets exactly.
 //! - [`daq`]: raw gauge voltages (and a thermistor) from a DAQ front end, in this project's own
 //!   framing with a CRC-16 (spec in that module). The rig turns them into a wrench with the
 //!   sensor's calibration file.
@@ -22,6 +22,8 @@
 //! - [`transform`]: the tool transform that moves a wrench from the sensor's reference point to
 //!   the indenter tip, with a near-singularity check.
 //! - [`bias`]: the tare estimator (mean and standard error over a window of samples).
+//! - [`sequence`]: a device's u32 sequence number (RDT, DAQ frames): loss, reordering and
+//!   duplicate counts, and the number unwrapped to a u64.
 //! - [`SampleFlags`] and [`saturation_mask`]: what is wrong with one sample, never passed
 //!   silently.
 //!
@@ -31,6 +33,7 @@ pub mod bias;
 pub mod cal;
 pub mod daq;
 pub mod netft;
+pub mod sequence;
 pub mod serial;
 pub mod transform;
 

@@ -21,9 +21,10 @@
 //! counts / counts-per-force, torques counts / counts-per-torque (from the box's configuration
 //! page; the factory default is 1 000 000 counts per N and per N·m).
 //!
-//! UDP may lose, reorder and duplicate packets. [`SequenceTracker`] classifies every arriving
-//! `rdt_sequence` and keeps exact counts: a gap adds its size to `lost`; a packet that later
-//! fills a gap moves one from `lost` to `reordered`; a sequence seen before is a duplicate.
+//! UDP may lose, reorder and duplicate packets. [`SequenceTracker`] (from
+//! [`super::sequence`], re-exported here) classifies every arriving `rdt_sequence` and keeps
+//! exact counts: a gap adds its size to `lost`; a packet that later fills a gap moves one from
+//! `lost` to `reordered`; a sequence seen before is a duplicate.
 
 /// The Net F/T's RDT port.
 pub const RDT_PORT: u16 = 49152;
@@ -173,108 +174,4 @@ impl RdtRecord {
     }
 }
 
-/// How one arriving sequence number relates to those before it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Arrival {
-    /// The first packet seen.
-    First,
-    /// The next one expected.
-    InOrder,
-    /// Newer than expected: `missing` packets in between are (for now) lost.
-    AfterGap { missing: u32 },
-    /// Older than the newest, filling an earlier gap: reordered, not lost.
-    Late,
-    /// Seen before, or too old to tell (beyond the tracking window).
-    Duplicate,
-}
-
-/// Exact loss / reorder / duplicate counts.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
-pub struct SequenceStats {
-    pub received: u64,
-    pub lost: u64,
-    pub reordered: u64,
-    pub duplicates: u64,
-    /// Gaps larger than [`MAX_TRACKED_GAP`] (counted in `lost` but not individually tracked).
-    pub large_gaps: u64,
-}
-
-/// Largest gap whose missing sequence numbers are remembered individually (so a late packet
-/// can be told from a duplicate). Larger jumps (a box restart) still count as lost.
-pub const MAX_TRACKED_GAP: u32 = 4096;
-/// How far behind the newest sequence a missing number is still remembered.
-pub const TRACK_WINDOW: u32 = 1 << 16;
-
-/// Tracks a u32 sequence (wrapping) for loss and reordering. See the module docs.
-#[derive(Debug, Clone, Default)]
-pub struct SequenceTracker {
-    newest: Option<u32>,
-    missing: std::collections::BTreeSet<u64>,
-    // Unwrapped counterpart of `newest`, so that the missing set orders correctly across wraps.
-    newest_unwrapped: u64,
-    stats: SequenceStats,
-}
-
-impl SequenceTracker {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    pub fn stats(&self) -> SequenceStats {
-        self.stats
-    }
-
-    /// Classifies `seq` and updates the counts.
-    pub fn observe(&mut self, seq: u32) -> Arrival {
-        self.stats.received += 1;
-        let Some(newest) = self.newest else {
-            self.newest = Some(seq);
-            self.newest_unwrapped = u64::from(seq) + (1 << 32);
-            return Arrival::First;
-        };
-        let delta = seq.wrapping_sub(newest) as i32;
-        if delta > 0 {
-            let missing = (delta - 1) as u32;
-            let base = self.newest_unwrapped;
-            if missing > MAX_TRACKED_GAP {
-                self.stats.large_gaps += 1;
-            } else {
-                for k in 1..=u64::from(missing) {
-                    self.missing.insert(base + k);
-                }
-            }
-            self.stats.lost += u64::from(missing);
-            self.newest = Some(seq);
-            self.newest_unwrapped = base + delta as u64;
-            // Forget gaps too old to be filled.
-            let horizon = self
-                .newest_unwrapped
-                .saturating_sub(u64::from(TRACK_WINDOW));
-            while let Some(&first) = self.missing.first() {
-                if first >= horizon {
-                    break;
-                }
-                self.missing.pop_first();
-            }
-            if missing == 0 {
-                Arrival::InOrder
-            } else {
-                Arrival::AfterGap { missing }
-            }
-        } else if delta == 0 {
-            self.stats.duplicates += 1;
-            Arrival::Duplicate
-        } else {
-            let back = u64::from(delta.unsigned_abs());
-            let unwrapped = self.newest_unwrapped.saturating_sub(back);
-            if self.missing.remove(&unwrapped) {
-                self.stats.lost -= 1;
-                self.stats.reordered += 1;
-                Arrival::Late
-            } else {
-                self.stats.duplicates += 1;
-                Arrival::Duplicate
-            }
-        }
-    }
-}
+pub use super::sequence::{Arrival, MAX_TRACKED_GAP, SequenceStats, SequenceTracker, TRACK_WINDOW};
