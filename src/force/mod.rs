@@ -280,16 +280,8 @@ impl Conditioner {
                 counts_per_force,
                 counts_per_torque,
             } => {
-                let mut w = [0.0; 6];
-                for i in 0..6 {
-                    let k = if i < 3 {
-                        *counts_per_force
-                    } else {
-                        *counts_per_torque
-                    };
-                    w[i] = (raw[i] - bias[i]) / k;
-                }
-                w
+                let tared: [f64; 6] = std::array::from_fn(|i| raw[i] - bias[i]);
+                rig_core::ft::counts_to_wrench(&tared, *counts_per_force, *counts_per_torque)
             }
             RawMap::Gauges { calibration, .. } => calibration.wrench(raw, bias),
         }
@@ -627,8 +619,14 @@ impl FrontEndSettings {
             .or(calibration.as_ref().map(|c| c.max_loads))
             .unwrap_or(NANO17_SI_25_MAX);
         let (dcpf, dcpt) = match cfg.kind {
-            ForceSensorKind::Netft | ForceSensorKind::Sim => (1e6, 1e3),
-            _ => (320.0, 64.0),
+            ForceSensorKind::Netft | ForceSensorKind::Sim => (
+                rig_core::ft::netft::FACTORY_COUNTS_PER_FORCE,
+                rig_core::ft::netft::FACTORY_COUNTS_PER_TORQUE,
+            ),
+            _ => (
+                rig_core::ft::serial::DEFAULT_COUNTS_PER_FORCE,
+                rig_core::ft::serial::DEFAULT_COUNTS_PER_TORQUE,
+            ),
         };
         Ok(Self {
             tool,

@@ -56,7 +56,7 @@ enum Mock {
 #[derive(clap::Args, Debug)]
 struct Nano17Args {
     /// Records per second.
-    #[arg(long, default_value_t = 1000.0)]
+    #[arg(long, default_value_t = rig_core::ft::DEFAULT_RATE_HZ)]
     rate_hz: f64,
     /// Serial controller output mode at power-up (the rig sets it with CD A / CD B anyway).
     #[arg(long, value_enum, default_value_t = ModeArg::Ascii)]
@@ -81,7 +81,7 @@ struct NetftArgs {
     #[arg(long, default_value = "127.0.0.1")]
     host: IpAddr,
     /// Records per second (a real Net F/T: up to 7000).
-    #[arg(long, default_value_t = 7000.0)]
+    #[arg(long, default_value_t = rig_core::ft::netft::MAX_RDT_RATE_HZ)]
     rate_hz: f64,
     /// Constant true load Fx,Fy,Fz,Tx,Ty,Tz (N, N·mm).
     #[arg(long, value_parser = parse_pose, allow_hyphen_values = true)]

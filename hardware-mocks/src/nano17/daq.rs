@@ -34,7 +34,7 @@ pub struct DaqMockConfig {
 impl Default for DaqMockConfig {
     fn default() -> Self {
         Self {
-            rate_hz: 1000.0,
+            rate_hz: rig_core::ft::DEFAULT_RATE_HZ,
             thermistor: true,
             seed: 7,
         }

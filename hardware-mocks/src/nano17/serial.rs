@@ -16,7 +16,10 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
 use rig_core::clock::Clock;
-use rig_core::ft::serial::{Command, CountsRecord, OutputMode};
+use rig_core::ft::serial::{
+    Command, CountsRecord, DEFAULT_COUNTS_PER_FORCE, DEFAULT_COUNTS_PER_TORQUE, OutputMode,
+};
+use rig_core::ft::{DEFAULT_RATE_HZ, wrench_to_counts};
 use tokio::sync::oneshot;
 
 use super::pty::PtyMaster;
@@ -43,9 +46,9 @@ pub struct SerialMockConfig {
 impl Default for SerialMockConfig {
     fn default() -> Self {
         Self {
-            rate_hz: 1000.0,
-            counts_per_force: 320.0,
-            counts_per_torque: 64.0,
+            rate_hz: DEFAULT_RATE_HZ,
+            counts_per_force: DEFAULT_COUNTS_PER_FORCE,
+            counts_per_torque: DEFAULT_COUNTS_PER_TORQUE,
             mode: OutputMode::Ascii,
             seed: 17,
         }
@@ -106,17 +109,12 @@ impl Controller {
         let truth = self.source.wrench_at(t_ns).to_array();
         let m = self.model.measure(&truth, self.faults.saturated());
         let w = self.model.resolve(&m);
-        let mut counts = [0i32; 6];
-        for i in 0..6 {
-            let k = if i < 3 {
-                self.cfg.counts_per_force
-            } else {
-                self.cfg.counts_per_torque
-            };
-            counts[i] = ((w[i] - self.bias[i]) * k)
-                .round()
-                .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32;
-        }
+        let biased: [f64; 6] = std::array::from_fn(|i| w[i] - self.bias[i]);
+        let counts = wrench_to_counts(
+            &biased,
+            self.cfg.counts_per_force,
+            self.cfg.counts_per_torque,
+        );
         let status = if m.saturated_gauges != 0 {
             STATUS_SATURATED
         } else {

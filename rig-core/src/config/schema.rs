@@ -355,14 +355,16 @@ pub struct ForceSensorConfig {
     #[serde(default)]
     pub output: crate::ft::serial::OutputMode,
     /// Counts per newton of the controller or Net F/T (its configuration page). Default: 1e6
-    /// for `netft` (ATI's factory default), 320 for `serial`.
+    /// for `netft` and `sim` (ATI's factory default,
+    /// [`crate::ft::netft::FACTORY_COUNTS_PER_FORCE`]), 320 for `serial`
+    /// ([`crate::ft::serial::DEFAULT_COUNTS_PER_FORCE`]).
     #[serde(default)]
     pub counts_per_force: Option<f64>,
-    /// Counts per N·mm. Default: 1000 for `netft` (1e6 per N·m), 64 for `serial`.
+    /// Counts per N·mm. Default: 1000 for `netft` and `sim` (1e6 per N·m), 64 for `serial`.
     #[serde(default)]
     pub counts_per_torque: Option<f64>,
     /// Max loads `[Fx, Fy, Fz, Tx, Ty, Tz]` (N, N·mm) when no calibration file gives them.
-    /// Default: Nano17 SI-25-0.25 (25, 25, 35 N; 250 N·mm).
+    /// Default: Nano17 SI-25-0.25 (25, 25, 35 N; 250 N·mm; [`crate::ft::NANO17_SI_25_MAX`]).
     #[serde(default)]
     pub max_loads: Option<[f64; 6]>,
     /// What to do with a saturated sample: `"flag"` (default: keep, flagged), `"drop"` or
@@ -391,7 +393,7 @@ pub enum SaturationPolicy {
 }
 
 fn default_ft_rate_hz() -> f64 {
-    1000.0
+    crate::ft::DEFAULT_RATE_HZ
 }
 fn default_tare_samples() -> u32 {
     500

@@ -27,6 +27,12 @@
 //! - [`SampleFlags`] and [`saturation_mask`]: what is wrong with one sample, never passed
 //!   silently.
 //!
+//! - The Nano17 SI-25-0.25's data-sheet values ([`NANO17_SI_25_MAX`],
+//!   [`NANO17_SI_25_RESOLUTION`]), the counts per unit of each front end
+//!   ([`serial::DEFAULT_COUNTS_PER_FORCE`], [`netft::FACTORY_COUNTS_PER_FORCE`], ...) and the
+//!   one conversion between counts and N, N·mm ([`counts_to_wrench`], [`wrench_to_counts`]):
+//!   named here once, used by the rig's readers and the simulated devices alike.
+//!
 //! Units: forces in N, torques in N·mm, gauge signals in volts, time in `t_ns`.
 
 pub mod bias;
@@ -41,6 +47,10 @@ use std::fmt;
 
 /// Axis names in the order used everywhere: `[Fx, Fy, Fz, Tx, Ty, Tz]`.
 pub const AXES: [&str; 6] = ["Fx", "Fy", "Fz", "Tx", "Ty", "Tz"];
+
+/// Sample rate a front end is asked for when `force_sensor.rate_hz` is not given, Hz; the
+/// simulated F/T controller and DAQ front end stream at it by default.
+pub const DEFAULT_RATE_HZ: f64 = 1000.0;
 
 /// Nano17 SI-25-0.25 ranges (ATI Nano17 data sheet): Fx, Fy ±25 N, Fz ±35 N, Tx..Tz ±250 N·mm.
 pub const NANO17_SI_25_MAX: [f64; 6] = [25.0, 25.0, 35.0, 250.0, 250.0, 250.0];
@@ -166,19 +176,37 @@ pub fn saturation_mask(values: &[f64; 6], max: &[f64; 6]) -> u8 {
     mask
 }
 
+/// Counts per unit of axis `axis` of `[Fx, Fy, Fz, Tx, Ty, Tz]`: counts per force (per N) for
+/// the forces, counts per torque (per N·mm) for the torques.
+pub fn counts_per_unit(axis: usize, counts_per_force: f64, counts_per_torque: f64) -> f64 {
+    if axis < 3 {
+        counts_per_force
+    } else {
+        counts_per_torque
+    }
+}
+
 /// F/T counts to `[Fx, Fy, Fz]` N and `[Tx, Ty, Tz]` N·mm: forces divide by counts per force,
-/// torques by counts per torque (ATI: newtons = counts / CPF, N·mm = counts / CPT).
+/// torques by counts per torque (ATI: newtons = counts / CPF, N·mm = counts / CPT). The counts
+/// are `f64` so that a tare (a mean of counts) can be subtracted first.
 pub fn counts_to_wrench(
-    counts: &[i32; 6],
+    counts: &[f64; 6],
     counts_per_force: f64,
     counts_per_torque: f64,
 ) -> [f64; 6] {
+    std::array::from_fn(|i| counts[i] / counts_per_unit(i, counts_per_force, counts_per_torque))
+}
+
+/// The inverse of [`counts_to_wrench`]: what a controller or Net F/T sends for a wrench, each
+/// axis rounded to whole counts and clamped to the `i32` range.
+pub fn wrench_to_counts(
+    wrench: &[f64; 6],
+    counts_per_force: f64,
+    counts_per_torque: f64,
+) -> [i32; 6] {
     std::array::from_fn(|i| {
-        let k = if i < 3 {
-            counts_per_force
-        } else {
-            counts_per_torque
-        };
-        f64::from(counts[i]) / k
+        (wrench[i] * counts_per_unit(i, counts_per_force, counts_per_torque))
+            .round()
+            .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
     })
 }

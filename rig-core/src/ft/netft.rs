@@ -36,6 +36,10 @@ pub const REQUEST_LEN: usize = 8;
 pub const RECORD_LEN: usize = 36;
 /// Fastest real-time RDT output of a Net F/T, Hz.
 pub const MAX_RDT_RATE_HZ: f64 = 7000.0;
+/// Counts per newton of a Net F/T as shipped (its configuration page can change it).
+pub const FACTORY_COUNTS_PER_FORCE: f64 = 1e6;
+/// Counts per N·mm of a Net F/T as shipped: 1 000 000 per N·m.
+pub const FACTORY_COUNTS_PER_TORQUE: f64 = 1e3;
 /// Status bit 31: the box reports an error.
 pub const STATUS_ERROR: u32 = 1 << 31;
 
@@ -170,7 +174,11 @@ impl RdtRecord {
 
     /// N and N·mm from counts.
     pub fn to_wrench(&self, counts_per_force: f64, counts_per_torque: f64) -> [f64; 6] {
-        super::counts_to_wrench(&self.counts, counts_per_force, counts_per_torque)
+        super::counts_to_wrench(
+            &self.counts.map(f64::from),
+            counts_per_force,
+            counts_per_torque,
+        )
     }
 }
 
