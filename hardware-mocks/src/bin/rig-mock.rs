@@ -24,6 +24,7 @@ use std::net::{IpAddr, SocketAddr};
 
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
+use hardware_mocks::nano17::{MockConfig, MockHandle};
 use hardware_mocks::ur5e::{Ur5e, Ur5eConfig};
 use rig_core::clock::Clock;
 use rig_core::control::robot_mode;
@@ -109,6 +110,17 @@ fn ready(line: String) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Prints the ready line, runs until SIGINT or SIGTERM, then shuts the F/T mock down.
+async fn serve_until_signal<C: MockConfig>(
+    mock: MockHandle<C>,
+    ready_line: String,
+) -> anyhow::Result<()> {
+    ready(ready_line)?;
+    wait_for_signal().await?;
+    mock.shutdown().await;
+    Ok(())
+}
+
 async fn run_nano17_serial(args: Nano17Args) -> anyhow::Result<()> {
     use hardware_mocks::nano17::{SensorModel, serial};
     check_rate(args.rate_hz)?;
@@ -127,10 +139,8 @@ async fn run_nano17_serial(args: Nano17Args) -> anyhow::Result<()> {
         Clock::system(),
     )
     .context("could not open a pty for the simulated F/T controller")?;
-    ready(format!("nano17-serial ready pty={}", mock.path().display()))?;
-    wait_for_signal().await?;
-    mock.shutdown().await;
-    Ok(())
+    let line = format!("nano17-serial ready pty={}", mock.path().display());
+    serve_until_signal(mock, line).await
 }
 
 async fn run_nano17_daq(args: Nano17Args) -> anyhow::Result<()> {
@@ -146,10 +156,8 @@ async fn run_nano17_daq(args: Nano17Args) -> anyhow::Result<()> {
         Clock::system(),
     )
     .context("could not open a pty for the simulated DAQ")?;
-    ready(format!("nano17-daq ready pty={}", mock.path().display()))?;
-    wait_for_signal().await?;
-    mock.shutdown().await;
-    Ok(())
+    let line = format!("nano17-daq ready pty={}", mock.path().display());
+    serve_until_signal(mock, line).await
 }
 
 async fn run_netft(args: NetftArgs) -> anyhow::Result<()> {
@@ -172,10 +180,8 @@ async fn run_netft(args: NetftArgs) -> anyhow::Result<()> {
             args.host, args.port
         )
     })?;
-    ready(format!("netft ready addr={}", mock.addr()))?;
-    wait_for_signal().await?;
-    mock.shutdown().await;
-    Ok(())
+    let line = format!("netft ready addr={}", mock.addr());
+    serve_until_signal(mock, line).await
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]

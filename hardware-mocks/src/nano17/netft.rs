@@ -26,7 +26,9 @@ use rig_core::ft::wrench_to_counts;
 use tokio::net::UdpSocket;
 use tokio::sync::oneshot;
 
-use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{
+    Faults, MockConfig, MockHandle, MockStats, SensorModel, SharedWrenchSource, sample_time_ns,
+};
 
 /// Status bits of a record taken while a gauge is saturated (bit 31 "error" plus the mock's
 /// saturation bit 16).
@@ -59,9 +61,10 @@ impl Default for NetFtMockConfig {
 }
 
 /// A running simulated Net F/T.
-pub struct NetFtMock {
-    addr: SocketAddr,
-    running: Running,
+pub type NetFtMock = MockHandle<NetFtMockConfig>;
+
+impl MockConfig for NetFtMockConfig {
+    type Endpoint = SocketAddr;
 }
 
 impl NetFtMock {
@@ -74,24 +77,9 @@ impl NetFtMock {
     ) -> io::Result<Self> {
         let sock = UdpSocket::bind(cfg.bind).await?;
         let addr = sock.local_addr()?;
-        let running = Running::spawn(|faults, stats, stop| {
+        Ok(Self::spawn(addr, |faults, stats, stop| {
             run(sock, cfg, model, source, clock, faults, stats, stop)
-        });
-        Ok(Self { addr, running })
-    }
-
-    pub fn addr(&self) -> SocketAddr {
-        self.addr
-    }
-    pub fn faults(&self) -> &Arc<Faults> {
-        self.running.faults()
-    }
-    pub fn stats(&self) -> &Arc<MockStats> {
-        self.running.stats()
-    }
-
-    pub async fn shutdown(self) {
-        self.running.shutdown().await;
+        }))
     }
 }
 

@@ -11,7 +11,7 @@
 //! Counts are `round(F · CPF)`, `round(T · CPT)` of the resolved, biased wrench.
 
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
@@ -23,7 +23,9 @@ use rig_core::ft::{DEFAULT_RATE_HZ, wrench_to_counts};
 use tokio::sync::oneshot;
 
 use super::pty::PtyMaster;
-use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{
+    Faults, MockConfig, MockHandle, MockStats, SensorModel, SharedWrenchSource, sample_time_ns,
+};
 
 /// Status word of a record taken while a gauge is saturated (the mock's choice of bit).
 pub const STATUS_SATURATED: u32 = 0x0001;
@@ -56,9 +58,10 @@ impl Default for SerialMockConfig {
 }
 
 /// A running simulated controller.
-pub struct SerialControllerMock {
-    path: PathBuf,
-    running: Running,
+pub type SerialControllerMock = MockHandle<SerialMockConfig>;
+
+impl MockConfig for SerialMockConfig {
+    type Endpoint = PathBuf;
 }
 
 impl SerialControllerMock {
@@ -71,26 +74,9 @@ impl SerialControllerMock {
     ) -> io::Result<Self> {
         let pty = PtyMaster::open()?;
         let path = pty.path().to_owned();
-        let running = Running::spawn(|faults, stats, stop| {
+        Ok(Self::spawn(path, |faults, stats, stop| {
             run(pty, cfg, model, source, clock, faults, stats, stop)
-        });
-        Ok(Self { path, running })
-    }
-
-    /// The pty path the rig opens.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-    pub fn faults(&self) -> &Arc<Faults> {
-        self.running.faults()
-    }
-    pub fn stats(&self) -> &Arc<MockStats> {
-        self.running.stats()
-    }
-
-    /// Stops the controller and closes the pty.
-    pub async fn shutdown(self) {
-        self.running.shutdown().await;
+        }))
     }
 }
 
