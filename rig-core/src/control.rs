@@ -44,49 +44,63 @@ pub const OUT_STATUS: u32 = 26;
 /// Default minimum heartbeat rate for the watchdog, Hz.
 pub const WATCHDOG_MIN_HZ: f64 = 10.0;
 
-/// What the rig asks the program to do.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(i32)]
-pub enum CommandKind {
-    /// Nothing (initial register value).
-    None = 0,
-    /// moveL to the target pose with the given speed and acceleration.
-    MoveL = 1,
-    /// Decelerate to a stop with the given acceleration (stopl).
-    Stop = 2,
+/// An enum of integer codes that travel in registers or RTDE fields, each with its name: the
+/// variants, `ALL`, the code-to-variant function and `name()` come from one table, so a code
+/// and its name are written once.
+macro_rules! coded_enum {
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident: $repr:ident, fn $from:ident {
+            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $text:literal, )*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        #[repr($repr)]
+        $vis enum $name {
+            $( $(#[$vmeta])* $variant = $code, )*
+        }
+
+        impl $name {
+            /// Every value, in code order.
+            pub const ALL: &'static [Self] = &[$(Self::$variant),*];
+
+            /// The value of a code, `None` for a code that has none.
+            pub fn $from(code: $repr) -> Option<Self> {
+                Self::ALL.iter().copied().find(|v| *v as $repr == code)
+            }
+
+            /// The name of the value (see the type's docs for whose spelling).
+            pub const fn name(self) -> &'static str {
+                match self {
+                    $( Self::$variant => $text, )*
+                }
+            }
+        }
+    };
 }
 
-impl CommandKind {
-    pub fn from_i32(v: i32) -> Option<Self> {
-        match v {
-            0 => Some(Self::None),
-            1 => Some(Self::MoveL),
-            2 => Some(Self::Stop),
-            _ => None,
-        }
+coded_enum! {
+    /// What the rig asks the program to do (names: the URScript it stands for, in capitals).
+    pub enum CommandKind: i32, fn from_i32 {
+        /// Nothing (initial register value).
+        None = 0 => "NONE",
+        /// moveL to the target pose with the given speed and acceleration.
+        MoveL = 1 => "MOVEL",
+        /// Decelerate to a stop with the given acceleration (stopl).
+        Stop = 2 => "STOPL",
     }
 }
 
-/// What the program reports in [`OUT_STATUS`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(i32)]
-pub enum ProgramStatus {
-    /// Waiting for a command.
-    Idle = 0,
-    /// Executing a moveL.
-    Moving = 1,
-    /// A command was refused (unknown kind, non-finite or non-positive speed/acceleration).
-    Rejected = 2,
-}
-
-impl ProgramStatus {
-    pub fn from_i32(v: i32) -> Option<Self> {
-        match v {
-            0 => Some(Self::Idle),
-            1 => Some(Self::Moving),
-            2 => Some(Self::Rejected),
-            _ => None,
-        }
+coded_enum! {
+    /// What the program reports in [`OUT_STATUS`].
+    pub enum ProgramStatus: i32, fn from_i32 {
+        /// Waiting for a command.
+        Idle = 0 => "IDLE",
+        /// Executing a moveL.
+        Moving = 1 => "MOVING",
+        /// A command was refused (unknown kind, non-finite or non-positive speed/acceleration).
+        Rejected = 2 => "REJECTED",
     }
 }
 
@@ -104,41 +118,115 @@ pub fn output_double(n: u32) -> String {
     format!("output_double_register_{n}")
 }
 
-/// UR robot_mode values (RTDE guide).
+/// Name of a mode value that no [`RobotMode`], [`SafetyMode`] or [`RuntimeState`] has.
+pub const UNKNOWN_MODE_NAME: &str = "UNKNOWN";
+
+coded_enum! {
+    /// UR robot_mode (RTDE guide: `robot_mode`; dashboard server: `robotmode`). Names as the
+    /// dashboard server prints them (`Robotmode: RUNNING`) and the RTDE guide lists them
+    /// (there with a `ROBOT_MODE_` prefix).
+    pub enum RobotMode: i32, fn from_i32 {
+        NoController = -1 => "NO_CONTROLLER",
+        Disconnected = 0 => "DISCONNECTED",
+        ConfirmSafety = 1 => "CONFIRM_SAFETY",
+        Booting = 2 => "BOOTING",
+        PowerOff = 3 => "POWER_OFF",
+        PowerOn = 4 => "POWER_ON",
+        Idle = 5 => "IDLE",
+        Backdrive = 6 => "BACKDRIVE",
+        Running = 7 => "RUNNING",
+        UpdatingFirmware = 8 => "UPDATING_FIRMWARE",
+    }
+}
+
+coded_enum! {
+    /// UR safety_mode (RTDE guide: `safety_mode`; dashboard server: `safetymode`). Names as the
+    /// dashboard server prints them (`Safetymode: PROTECTIVE_STOP`).
+    pub enum SafetyMode: i32, fn from_i32 {
+        Normal = 1 => "NORMAL",
+        Reduced = 2 => "REDUCED",
+        ProtectiveStop = 3 => "PROTECTIVE_STOP",
+        Recovery = 4 => "RECOVERY",
+        SafeguardStop = 5 => "SAFEGUARD_STOP",
+        SystemEmergencyStop = 6 => "SYSTEM_EMERGENCY_STOP",
+        RobotEmergencyStop = 7 => "ROBOT_EMERGENCY_STOP",
+        Violation = 8 => "VIOLATION",
+        Fault = 9 => "FAULT",
+    }
+}
+
+coded_enum! {
+    /// UR runtime_state of the program (RTDE guide: `runtime_state`). Names in capitals, as the
+    /// dashboard server's `programState` prints them (`PLAYING`).
+    pub enum RuntimeState: u32, fn from_u32 {
+        Stopping = 0 => "STOPPING",
+        Stopped = 1 => "STOPPED",
+        Playing = 2 => "PLAYING",
+        Pausing = 3 => "PAUSING",
+        Paused = 4 => "PAUSED",
+        Resuming = 5 => "RESUMING",
+    }
+}
+
+/// The name of an RTDE `robot_mode` value ([`RobotMode::name`]), [`UNKNOWN_MODE_NAME`] for a
+/// value UR does not define.
+pub fn robot_mode_name(v: i32) -> &'static str {
+    RobotMode::from_i32(v).map_or(UNKNOWN_MODE_NAME, RobotMode::name)
+}
+
+/// The name of an RTDE `safety_mode` value ([`SafetyMode::name`]), [`UNKNOWN_MODE_NAME`] for a
+/// value UR does not define.
+pub fn safety_mode_name(v: i32) -> &'static str {
+    SafetyMode::from_i32(v).map_or(UNKNOWN_MODE_NAME, SafetyMode::name)
+}
+
+/// The name of an RTDE `runtime_state` value ([`RuntimeState::name`]), [`UNKNOWN_MODE_NAME`]
+/// for a value UR does not define.
+pub fn runtime_state_name(v: u32) -> &'static str {
+    RuntimeState::from_u32(v).map_or(UNKNOWN_MODE_NAME, RuntimeState::name)
+}
+
+/// UR robot_mode values as the `i32` RTDE carries ([`RobotMode`]).
 pub mod robot_mode {
-    pub const NO_CONTROLLER: i32 = -1;
-    pub const DISCONNECTED: i32 = 0;
-    pub const CONFIRM_SAFETY: i32 = 1;
-    pub const BOOTING: i32 = 2;
-    pub const POWER_OFF: i32 = 3;
-    pub const POWER_ON: i32 = 4;
-    pub const IDLE: i32 = 5;
-    pub const BACKDRIVE: i32 = 6;
-    pub const RUNNING: i32 = 7;
-    pub const UPDATING_FIRMWARE: i32 = 8;
+    use super::RobotMode;
+
+    pub const NO_CONTROLLER: i32 = RobotMode::NoController as i32;
+    pub const DISCONNECTED: i32 = RobotMode::Disconnected as i32;
+    pub const CONFIRM_SAFETY: i32 = RobotMode::ConfirmSafety as i32;
+    pub const BOOTING: i32 = RobotMode::Booting as i32;
+    pub const POWER_OFF: i32 = RobotMode::PowerOff as i32;
+    pub const POWER_ON: i32 = RobotMode::PowerOn as i32;
+    pub const IDLE: i32 = RobotMode::Idle as i32;
+    pub const BACKDRIVE: i32 = RobotMode::Backdrive as i32;
+    pub const RUNNING: i32 = RobotMode::Running as i32;
+    pub const UPDATING_FIRMWARE: i32 = RobotMode::UpdatingFirmware as i32;
 }
 
-/// UR safety_mode values (RTDE guide).
+/// UR safety_mode values as the `i32` RTDE carries ([`SafetyMode`]).
 pub mod safety_mode {
-    pub const NORMAL: i32 = 1;
-    pub const REDUCED: i32 = 2;
-    pub const PROTECTIVE_STOP: i32 = 3;
-    pub const RECOVERY: i32 = 4;
-    pub const SAFEGUARD_STOP: i32 = 5;
-    pub const SYSTEM_EMERGENCY_STOP: i32 = 6;
-    pub const ROBOT_EMERGENCY_STOP: i32 = 7;
-    pub const VIOLATION: i32 = 8;
-    pub const FAULT: i32 = 9;
+    use super::SafetyMode;
+
+    pub const NORMAL: i32 = SafetyMode::Normal as i32;
+    pub const REDUCED: i32 = SafetyMode::Reduced as i32;
+    pub const PROTECTIVE_STOP: i32 = SafetyMode::ProtectiveStop as i32;
+    pub const RECOVERY: i32 = SafetyMode::Recovery as i32;
+    pub const SAFEGUARD_STOP: i32 = SafetyMode::SafeguardStop as i32;
+    pub const SYSTEM_EMERGENCY_STOP: i32 = SafetyMode::SystemEmergencyStop as i32;
+    pub const ROBOT_EMERGENCY_STOP: i32 = SafetyMode::RobotEmergencyStop as i32;
+    pub const VIOLATION: i32 = SafetyMode::Violation as i32;
+    pub const FAULT: i32 = SafetyMode::Fault as i32;
 }
 
-/// UR runtime_state values (RTDE guide).
+/// UR runtime_state values as the `u32` RTDE carries ([`RuntimeState`]).
 pub mod runtime_state {
-    pub const STOPPING: u32 = 0;
-    pub const STOPPED: u32 = 1;
-    pub const PLAYING: u32 = 2;
-    pub const PAUSING: u32 = 3;
-    pub const PAUSED: u32 = 4;
-    pub const RESUMING: u32 = 5;
+    use super::RuntimeState;
+
+    pub const STOPPING: u32 = RuntimeState::Stopping as u32;
+    pub const STOPPED: u32 = RuntimeState::Stopped as u32;
+    pub const PLAYING: u32 = RuntimeState::Playing as u32;
+    pub const PAUSING: u32 = RuntimeState::Pausing as u32;
+    pub const PAUSED: u32 = RuntimeState::Paused as u32;
+    pub const RESUMING: u32 = RuntimeState::Resuming as u32;
 }
 
 /// Whether the controller state allows motion: robot RUNNING, safety NORMAL or REDUCED, and
@@ -167,6 +255,28 @@ mod tests {
         for n in [OUT_ACK_SEQ, OUT_DONE_SEQ, OUT_STATUS] {
             assert!(fields::output_type(&output_int(n)).is_some());
         }
+    }
+
+    #[test]
+    fn mode_names_round_trip_and_unknown_values_are_named_unknown() {
+        for &m in RobotMode::ALL {
+            assert_eq!(robot_mode_name(m as i32), m.name());
+        }
+        for &m in SafetyMode::ALL {
+            assert_eq!(safety_mode_name(m as i32), m.name());
+        }
+        for &m in RuntimeState::ALL {
+            assert_eq!(runtime_state_name(m as u32), m.name());
+        }
+        assert_eq!(robot_mode_name(robot_mode::RUNNING), "RUNNING");
+        assert_eq!(
+            safety_mode_name(safety_mode::PROTECTIVE_STOP),
+            "PROTECTIVE_STOP"
+        );
+        assert_eq!(runtime_state_name(runtime_state::PLAYING), "PLAYING");
+        assert_eq!(robot_mode_name(42), UNKNOWN_MODE_NAME);
+        assert_eq!(safety_mode_name(0), UNKNOWN_MODE_NAME);
+        assert_eq!(runtime_state_name(6), UNKNOWN_MODE_NAME);
     }
 
     #[test]

@@ -7,12 +7,11 @@
 
 use std::sync::Arc;
 
-use rig_core::control::runtime_state;
+use rig_core::control::{robot_mode_name, runtime_state, runtime_state_name, safety_mode_name};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
 
 use super::Shared;
-use super::controller::{robot_mode_name, runtime_state_name, safety_mode_name};
 
 /// First line sent to every dashboard client.
 pub const GREETING: &str = "Connected: Universal Robots Dashboard Server";
