@@ -14,9 +14,9 @@ use rig_core::control::{
 use rig_core::pose::Pose;
 use rig_core::rtde::Value;
 
-use super::ControllerSnapshot;
 use super::motion::LinearMove;
-use super::script::{Script, WatchdogAction};
+use super::program::{Script, WatchdogAction};
+use super::snapshot::ControllerSnapshot;
 use super::variables::InputSink;
 
 /// Deceleration of stops the controller imposes itself (protective stop, emergency stop,

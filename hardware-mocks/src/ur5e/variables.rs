@@ -9,7 +9,7 @@
 use rig_core::control::{robot_mode, runtime_state, safety_mode};
 use rig_core::rtde::{Value, fields};
 
-use super::ControllerSnapshot;
+use super::snapshot::ControllerSnapshot;
 
 /// The source of one output-recipe field.
 #[derive(Debug, Clone, Copy, PartialEq)]
