@@ -86,14 +86,13 @@ mod kernels;
 mod normal;
 mod tangential;
 
-use std::str::FromStr;
-
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::{Geometry, Indenter, Primitive};
 use rig_core::wrench::Wrench;
 use rustfft::num_complex::Complex64;
 
-use super::{Scene, SimError, SimStats};
+pub use super::scene::{ContactModel, FrictionModel, Viscoelastic};
+use super::scene::{Scene, SimError, SimStats};
 
 /// Closed-form reference forces (N) for the benchmark and tests; `e_star_mpa` is `E/(1−ν²)`.
 pub mod analytic {
@@ -127,78 +126,6 @@ pub mod analytic {
 pub const DEFAULT_CELL_MM: f64 = 0.1;
 /// Most cells a contact grid may have (a typo in a cell size must not exhaust memory).
 pub const MAX_GRID_CELLS: usize = 1 << 20;
-
-/// Which contact model a scene uses (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum ContactModel {
-    /// Analytic sphere on a half-space.
-    Hertz,
-    /// Independent springs `k = M / h`.
-    Winkler,
-    /// FFT boundary elements on an elastic half-space.
-    HalfSpace,
-    /// FFT boundary elements on a layer of the gel's thickness bonded to a rigid base.
-    #[default]
-    Layer,
-}
-
-impl ContactModel {
-    pub const ALL: [ContactModel; 4] = [
-        ContactModel::Hertz,
-        ContactModel::Winkler,
-        ContactModel::HalfSpace,
-        ContactModel::Layer,
-    ];
-
-    /// Name as used on command lines: `hertz`, `winkler`, `half-space`, `layer`.
-    pub fn name(self) -> &'static str {
-        match self {
-            ContactModel::Hertz => "hertz",
-            ContactModel::Winkler => "winkler",
-            ContactModel::HalfSpace => "half-space",
-            ContactModel::Layer => "layer",
-        }
-    }
-}
-
-impl std::fmt::Display for ContactModel {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for ContactModel {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        ContactModel::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                format!("unknown contact model `{s}`; one of: hertz, winkler, half-space, layer")
-            })
-    }
-}
-
-/// Tangential behaviour.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum FrictionModel {
-    /// No tangential traction (no tangential solve at all).
-    #[default]
-    None,
-    /// Coulomb stick/slip, each frame one shear step from the unloaded state (no history).
-    Monotonic,
-    /// Coulomb stick/slip with history carried between frames by a `Simulator`.
-    Incremental,
-}
-
-/// Standard-linear-solid relaxation of the contact force.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Viscoelastic {
-    /// Instantaneous over relaxed modulus, ≥ 1.
-    pub instant_ratio: f64,
-    /// Relaxation time, s (> 0).
-    pub tau_s: f64,
-}
 
 /// Surface fields on a regular grid over the gel, in the sensor surface frame.
 ///

@@ -1,11 +1,42 @@
-//! Surface fields as the renderer needs them: resampled onto the image's pixel grid, and a
-//! purely geometric field for tests and previews.
+//! Surface fields as the renderer needs them: the image's pixel grid over the gel ([`Raster`]),
+//! the fields resampled onto it, and a purely geometric field for tests and previews.
 
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::Indenter;
+use rig_core::optics::OpticsConfig;
 
 use super::super::contact::SurfaceField;
-use super::Raster;
+
+/// The pixel grid of an image over the gel.
+pub(crate) struct Raster {
+    pub width: usize,
+    pub height: usize,
+    pub mm_per_px: f64,
+}
+
+impl Raster {
+    pub(crate) fn new(optics: &OpticsConfig) -> Self {
+        let side = |v: u32| (v.min(rig_core::optics::MAX_SIDE_PX)) as usize;
+        let mm_per_px = if optics.mm_per_px.is_finite() && optics.mm_per_px > 0.0 {
+            optics.mm_per_px
+        } else {
+            OpticsConfig::default().mm_per_px
+        };
+        Self {
+            width: side(optics.width_px),
+            height: side(optics.height_px),
+            mm_per_px,
+        }
+    }
+
+    pub fn x_mm(&self, u: usize) -> f64 {
+        (u as f64 + 0.5 - self.width as f64 / 2.0) * self.mm_per_px
+    }
+
+    pub fn y_mm(&self, v: usize) -> f64 {
+        (self.height as f64 / 2.0 - v as f64 - 0.5) * self.mm_per_px
+    }
+}
 
 /// The gel surface at every pixel, in the camera's view: `height_mm` is how far the surface
 /// has come towards the camera (`−uz`, ≥ 0 where pressed), `grad` its gradient, `shift` the
