@@ -15,7 +15,9 @@ use rig_core::ft::SampleFlags;
 use rig_core::ft::daq::{DaqParser, STATUS_ADC_FAULT};
 use rig_core::ft::sequence::{Arrival, SequenceTracker};
 
-use super::{Conditioner, Control, FrontEndSettings, FtError, FtStats, FtStream, RawMap};
+use super::conditioning::{Conditioner, FrontEndSettings, RawMap};
+use super::error::FtError;
+use super::stream::{Control, FtStats, FtStream};
 
 /// Read timeout of the port (how often the reader looks at its controls).
 pub const READ_TIMEOUT: Duration = Duration::from_millis(50);

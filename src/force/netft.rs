@@ -18,7 +18,9 @@ use rig_core::ft::netft::{RDT_PORT, RdtCommand, RdtRecord, RdtRequest};
 use rig_core::ft::sequence::{Arrival, SequenceTracker};
 use tokio::net::UdpSocket;
 
-use super::{Control, FrontEndSettings, FtError, FtStats, FtStream};
+use super::conditioning::FrontEndSettings;
+use super::error::FtError;
+use super::stream::{Control, FtStats, FtStream};
 
 /// Clock time without any datagram after which the box counts as gone.
 pub const SILENCE_TIMEOUT: Duration = Duration::from_secs(2);
