@@ -13,7 +13,7 @@ use std::time::Duration;
 use rig_core::clock::Clock;
 use rig_core::ft::SampleFlags;
 use rig_core::ft::daq::{DaqParser, STATUS_ADC_FAULT};
-use rig_core::ft::sequence::{Arrival, SequenceTracker};
+use rig_core::ft::sequence::SequenceTracker;
 
 use super::conditioning::{Conditioner, FrontEndSettings, RawMap};
 use super::error::FtError;
@@ -97,14 +97,10 @@ pub async fn open(
                 let t_host_ns = clock.now_ns();
                 parser.push(&buf[..n]);
                 while let Some(f) = parser.next_frame() {
-                    let mut flags = SampleFlags::NONE;
                     let (arrival, seq) = tracker.observe_unwrapped(f.sequence);
-                    match arrival {
-                        Arrival::Duplicate => continue,
-                        Arrival::AfterGap { .. } => flags |= SampleFlags::AFTER_GAP,
-                        Arrival::Late => flags |= SampleFlags::REORDERED,
-                        _ => {}
-                    }
+                    let Some(mut flags) = arrival.sample_flags() else {
+                        continue;
+                    };
                     if f.saturated_gauges() != 0 {
                         flags |= SampleFlags::GAUGE_SATURATED;
                     }

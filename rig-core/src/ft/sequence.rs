@@ -8,6 +8,8 @@
 //! a later one as the first plus how far it is ahead, a late one as how far it is behind), the
 //! `device_seq` a front end stamps its samples with.
 
+use super::SampleFlags;
+
 /// How one arriving sequence number relates to those before it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Arrival {
@@ -21,6 +23,20 @@ pub enum Arrival {
     Late,
     /// Seen before, or too old to tell (beyond the tracking window).
     Duplicate,
+}
+
+impl Arrival {
+    /// What a sample carried by this arrival is flagged with: [`SampleFlags::AFTER_GAP`] after
+    /// a gap, [`SampleFlags::REORDERED`] when late, nothing otherwise; `None` for a duplicate,
+    /// which a reader drops.
+    pub fn sample_flags(self) -> Option<SampleFlags> {
+        match self {
+            Arrival::Duplicate => None,
+            Arrival::AfterGap { .. } => Some(SampleFlags::AFTER_GAP),
+            Arrival::Late => Some(SampleFlags::REORDERED),
+            Arrival::First | Arrival::InOrder => Some(SampleFlags::NONE),
+        }
+    }
 }
 
 /// Exact loss / reorder / duplicate counts.
