@@ -46,12 +46,13 @@ pub const WATCHDOG_MIN_HZ: f64 = 10.0;
 
 /// An enum of integer codes that travel in registers or RTDE fields, each with its name: the
 /// variants, `ALL`, the code-to-variant function and `name()` come from one table, so a code
-/// and its name are written once.
+/// and its name are written once. With `mod m`, the table also gives a module of `i32` / `u32`
+/// constants named as the values are (`m::RUNNING`), for code that handles raw RTDE values.
 macro_rules! coded_enum {
     (
         $(#[$meta:meta])*
         $vis:vis enum $name:ident: $repr:ident, fn $from:ident {
-            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $text:literal, )*
+            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $konst:ident, )*
         }
     ) => {
         $(#[$meta])*
@@ -73,9 +74,29 @@ macro_rules! coded_enum {
             /// The name of the value (see the type's docs for whose spelling).
             pub const fn name(self) -> &'static str {
                 match self {
-                    $( Self::$variant => $text, )*
+                    $( Self::$variant => stringify!($konst), )*
                 }
             }
+        }
+    };
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident: $repr:ident, fn $from:ident,
+        $(#[$cmeta:meta])*
+        mod $consts:ident {
+            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $konst:ident, )*
+        }
+    ) => {
+        coded_enum! {
+            $(#[$meta])*
+            $vis enum $name: $repr, fn $from {
+                $( $(#[$vmeta])* $variant = $code => $konst, )*
+            }
+        }
+
+        $(#[$cmeta])*
+        pub mod $consts {
+            $( pub const $konst: $repr = super::$name::$variant as $repr; )*
         }
     };
 }
@@ -84,11 +105,11 @@ coded_enum! {
     /// What the rig asks the program to do (names: the URScript it stands for, in capitals).
     pub enum CommandKind: i32, fn from_i32 {
         /// Nothing (initial register value).
-        None = 0 => "NONE",
+        None = 0 => NONE,
         /// moveL to the target pose with the given speed and acceleration.
-        MoveL = 1 => "MOVEL",
+        MoveL = 1 => MOVEL,
         /// Decelerate to a stop with the given acceleration (stopl).
-        Stop = 2 => "STOPL",
+        Stop = 2 => STOPL,
     }
 }
 
@@ -96,11 +117,11 @@ coded_enum! {
     /// What the program reports in [`OUT_STATUS`].
     pub enum ProgramStatus: i32, fn from_i32 {
         /// Waiting for a command.
-        Idle = 0 => "IDLE",
+        Idle = 0 => IDLE,
         /// Executing a moveL.
-        Moving = 1 => "MOVING",
+        Moving = 1 => MOVING,
         /// A command was refused (unknown kind, non-finite or non-positive speed/acceleration).
-        Rejected = 2 => "REJECTED",
+        Rejected = 2 => REJECTED,
     }
 }
 
@@ -125,46 +146,52 @@ coded_enum! {
     /// UR robot_mode (RTDE guide: `robot_mode`; dashboard server: `robotmode`). Names as the
     /// dashboard server prints them (`Robotmode: RUNNING`) and the RTDE guide lists them
     /// (there with a `ROBOT_MODE_` prefix).
-    pub enum RobotMode: i32, fn from_i32 {
-        NoController = -1 => "NO_CONTROLLER",
-        Disconnected = 0 => "DISCONNECTED",
-        ConfirmSafety = 1 => "CONFIRM_SAFETY",
-        Booting = 2 => "BOOTING",
-        PowerOff = 3 => "POWER_OFF",
-        PowerOn = 4 => "POWER_ON",
-        Idle = 5 => "IDLE",
-        Backdrive = 6 => "BACKDRIVE",
-        Running = 7 => "RUNNING",
-        UpdatingFirmware = 8 => "UPDATING_FIRMWARE",
+    pub enum RobotMode: i32, fn from_i32,
+    /// UR robot_mode values as the `i32` RTDE carries ([`RobotMode`]).
+    mod robot_mode {
+        NoController = -1 => NO_CONTROLLER,
+        Disconnected = 0 => DISCONNECTED,
+        ConfirmSafety = 1 => CONFIRM_SAFETY,
+        Booting = 2 => BOOTING,
+        PowerOff = 3 => POWER_OFF,
+        PowerOn = 4 => POWER_ON,
+        Idle = 5 => IDLE,
+        Backdrive = 6 => BACKDRIVE,
+        Running = 7 => RUNNING,
+        UpdatingFirmware = 8 => UPDATING_FIRMWARE,
     }
 }
 
 coded_enum! {
     /// UR safety_mode (RTDE guide: `safety_mode`; dashboard server: `safetymode`). Names as the
     /// dashboard server prints them (`Safetymode: PROTECTIVE_STOP`).
-    pub enum SafetyMode: i32, fn from_i32 {
-        Normal = 1 => "NORMAL",
-        Reduced = 2 => "REDUCED",
-        ProtectiveStop = 3 => "PROTECTIVE_STOP",
-        Recovery = 4 => "RECOVERY",
-        SafeguardStop = 5 => "SAFEGUARD_STOP",
-        SystemEmergencyStop = 6 => "SYSTEM_EMERGENCY_STOP",
-        RobotEmergencyStop = 7 => "ROBOT_EMERGENCY_STOP",
-        Violation = 8 => "VIOLATION",
-        Fault = 9 => "FAULT",
+    pub enum SafetyMode: i32, fn from_i32,
+    /// UR safety_mode values as the `i32` RTDE carries ([`SafetyMode`]).
+    mod safety_mode {
+        Normal = 1 => NORMAL,
+        Reduced = 2 => REDUCED,
+        ProtectiveStop = 3 => PROTECTIVE_STOP,
+        Recovery = 4 => RECOVERY,
+        SafeguardStop = 5 => SAFEGUARD_STOP,
+        SystemEmergencyStop = 6 => SYSTEM_EMERGENCY_STOP,
+        RobotEmergencyStop = 7 => ROBOT_EMERGENCY_STOP,
+        Violation = 8 => VIOLATION,
+        Fault = 9 => FAULT,
     }
 }
 
 coded_enum! {
     /// UR runtime_state of the program (RTDE guide: `runtime_state`). Names in capitals, as the
     /// dashboard server's `programState` prints them (`PLAYING`).
-    pub enum RuntimeState: u32, fn from_u32 {
-        Stopping = 0 => "STOPPING",
-        Stopped = 1 => "STOPPED",
-        Playing = 2 => "PLAYING",
-        Pausing = 3 => "PAUSING",
-        Paused = 4 => "PAUSED",
-        Resuming = 5 => "RESUMING",
+    pub enum RuntimeState: u32, fn from_u32,
+    /// UR runtime_state values as the `u32` RTDE carries ([`RuntimeState`]).
+    mod runtime_state {
+        Stopping = 0 => STOPPING,
+        Stopped = 1 => STOPPED,
+        Playing = 2 => PLAYING,
+        Pausing = 3 => PAUSING,
+        Paused = 4 => PAUSED,
+        Resuming = 5 => RESUMING,
     }
 }
 
@@ -184,49 +211,6 @@ pub fn safety_mode_name(v: i32) -> &'static str {
 /// for a value UR does not define.
 pub fn runtime_state_name(v: u32) -> &'static str {
     RuntimeState::from_u32(v).map_or(UNKNOWN_MODE_NAME, RuntimeState::name)
-}
-
-/// UR robot_mode values as the `i32` RTDE carries ([`RobotMode`]).
-pub mod robot_mode {
-    use super::RobotMode;
-
-    pub const NO_CONTROLLER: i32 = RobotMode::NoController as i32;
-    pub const DISCONNECTED: i32 = RobotMode::Disconnected as i32;
-    pub const CONFIRM_SAFETY: i32 = RobotMode::ConfirmSafety as i32;
-    pub const BOOTING: i32 = RobotMode::Booting as i32;
-    pub const POWER_OFF: i32 = RobotMode::PowerOff as i32;
-    pub const POWER_ON: i32 = RobotMode::PowerOn as i32;
-    pub const IDLE: i32 = RobotMode::Idle as i32;
-    pub const BACKDRIVE: i32 = RobotMode::Backdrive as i32;
-    pub const RUNNING: i32 = RobotMode::Running as i32;
-    pub const UPDATING_FIRMWARE: i32 = RobotMode::UpdatingFirmware as i32;
-}
-
-/// UR safety_mode values as the `i32` RTDE carries ([`SafetyMode`]).
-pub mod safety_mode {
-    use super::SafetyMode;
-
-    pub const NORMAL: i32 = SafetyMode::Normal as i32;
-    pub const REDUCED: i32 = SafetyMode::Reduced as i32;
-    pub const PROTECTIVE_STOP: i32 = SafetyMode::ProtectiveStop as i32;
-    pub const RECOVERY: i32 = SafetyMode::Recovery as i32;
-    pub const SAFEGUARD_STOP: i32 = SafetyMode::SafeguardStop as i32;
-    pub const SYSTEM_EMERGENCY_STOP: i32 = SafetyMode::SystemEmergencyStop as i32;
-    pub const ROBOT_EMERGENCY_STOP: i32 = SafetyMode::RobotEmergencyStop as i32;
-    pub const VIOLATION: i32 = SafetyMode::Violation as i32;
-    pub const FAULT: i32 = SafetyMode::Fault as i32;
-}
-
-/// UR runtime_state values as the `u32` RTDE carries ([`RuntimeState`]).
-pub mod runtime_state {
-    use super::RuntimeState;
-
-    pub const STOPPING: u32 = RuntimeState::Stopping as u32;
-    pub const STOPPED: u32 = RuntimeState::Stopped as u32;
-    pub const PLAYING: u32 = RuntimeState::Playing as u32;
-    pub const PAUSING: u32 = RuntimeState::Pausing as u32;
-    pub const PAUSED: u32 = RuntimeState::Paused as u32;
-    pub const RESUMING: u32 = RuntimeState::Resuming as u32;
 }
 
 /// Whether the controller state allows motion: robot RUNNING, safety NORMAL or REDUCED, and
