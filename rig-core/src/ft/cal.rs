@@ -352,34 +352,39 @@ impl Calibration {
 
         let fu = attr(cal, "ForceUnits")?;
         let tu = attr(cal, "TorqueUnits")?;
-        let f_k = force_unit_to_n(fu).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!("attribute `ForceUnits` = {fu:?} is not a known unit (N, lbf, kgf, kN)"),
-            )
-        })?;
-        let t_k = torque_unit_to_nmm(tu).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!(
-                    "attribute `TorqueUnits` = {tu:?} is not a known unit (N-mm, N-m, lbf-in, lbf-ft, kgf-cm)"
-                ),
-            )
-        })?;
-        let du = cal.attribute("DistUnits").unwrap_or("mm");
-        let d_k = dist_unit_to_mm(du).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!("attribute `DistUnits` = {du:?} is not a known unit (mm, cm, m, in, ft)"),
-            )
-        })?;
-        let au = cal.attribute("AngleUnits").unwrap_or("degrees");
-        let a_k = angle_unit_to_rad(au).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!("attribute `AngleUnits` = {au:?} is not degrees or radians"),
-            )
-        })?;
+        // A unit attribute's factor to N, N·mm, mm or rad, or an error listing what is known.
+        let factor = |name: &str, value: &str, to_si: fn(&str) -> Option<f64>, known: &str| {
+            to_si(value).ok_or_else(|| {
+                elem_err(
+                    "<Calibration>",
+                    format!("attribute `{name}` = {value:?} is not {known}"),
+                )
+            })
+        };
+        let f_k = factor(
+            "ForceUnits",
+            fu,
+            force_unit_to_n,
+            "a known unit (N, lbf, kgf, kN)",
+        )?;
+        let t_k = factor(
+            "TorqueUnits",
+            tu,
+            torque_unit_to_nmm,
+            "a known unit (N-mm, N-m, lbf-in, lbf-ft, kgf-cm)",
+        )?;
+        let d_k = factor(
+            "DistUnits",
+            cal.attribute("DistUnits").unwrap_or("mm"),
+            dist_unit_to_mm,
+            "a known unit (mm, cm, m, in, ft)",
+        )?;
+        let a_k = factor(
+            "AngleUnits",
+            cal.attribute("AngleUnits").unwrap_or("degrees"),
+            angle_unit_to_rad,
+            "degrees or radians",
+        )?;
         let unit = |i: usize| if i < 3 { f_k } else { t_k };
 
         // Axis rows (required): values / scale, converted.

@@ -210,3 +210,20 @@ pub fn wrench_to_counts(
             .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
     })
 }
+
+/// Big-endian `u32` at byte `at` of `b` (DAQ frames and RDT records are big-endian).
+pub(crate) fn be_u32(b: &[u8], at: usize) -> u32 {
+    u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+}
+
+/// Six big-endian `i32` (gauges or counts) from byte `at` of `b` on.
+pub(crate) fn be_i32x6(b: &[u8], at: usize) -> [i32; 6] {
+    std::array::from_fn(|k| be_u32(b, at + 4 * k) as i32)
+}
+
+/// Writes six `i32` big-endian into `b` from byte `at` on.
+pub(crate) fn put_be_i32x6(b: &mut [u8], at: usize, values: &[i32; 6]) {
+    for (k, v) in values.iter().enumerate() {
+        b[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_be_bytes());
+    }
+}

@@ -119,7 +119,7 @@ impl RdtRequest {
         }
         Ok(Self {
             command: RdtCommand::from_code(u16::from_be_bytes([b[2], b[3]])),
-            sample_count: u32::from_be_bytes([b[4], b[5], b[6], b[7]]),
+            sample_count: super::be_u32(b, 4),
         })
     }
 }
@@ -139,9 +139,7 @@ impl RdtRecord {
         b[0..4].copy_from_slice(&self.rdt_sequence.to_be_bytes());
         b[4..8].copy_from_slice(&self.ft_sequence.to_be_bytes());
         b[8..12].copy_from_slice(&self.status.to_be_bytes());
-        for i in 0..6 {
-            b[12 + 4 * i..16 + 4 * i].copy_from_slice(&self.counts[i].to_be_bytes());
-        }
+        super::put_be_i32x6(&mut b, 12, &self.counts);
         b
     }
 
@@ -150,16 +148,12 @@ impl RdtRecord {
         if b.len() != RECORD_LEN {
             return Err(RdtError::RecordLength(b.len()));
         }
-        let u = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-        let mut counts = [0i32; 6];
-        for (k, c) in counts.iter_mut().enumerate() {
-            *c = u(12 + 4 * k) as i32;
-        }
+        let u = |at: usize| super::be_u32(b, at);
         Ok(Self {
             rdt_sequence: u(0),
             ft_sequence: u(4),
             status: u(8),
-            counts,
+            counts: super::be_i32x6(b, 12),
         })
     }
 

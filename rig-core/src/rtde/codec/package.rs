@@ -135,9 +135,7 @@ impl ClientPackage {
 
     /// Decode a frame received by the controller.
     pub fn decode(frame: &Frame, version: u16) -> Result<Self, DecodeError> {
-        let ty = PackageType::from_u8(frame.type_byte)
-            .ok_or(DecodeError::UnknownType(frame.type_byte))?;
-        let p = &frame.payload[..];
+        let (ty, p) = (frame.package_type()?, &frame.payload[..]);
         let pkg = match ty {
             PackageType::RequestProtocolVersion => {
                 let mut r = Reader::new("protocol version request", p);
@@ -245,9 +243,7 @@ impl ServerPackage {
 
     /// Decode a frame received by a client.
     pub fn decode(frame: &Frame, version: u16) -> Result<Self, DecodeError> {
-        let ty = PackageType::from_u8(frame.type_byte)
-            .ok_or(DecodeError::UnknownType(frame.type_byte))?;
-        let p = &frame.payload[..];
+        let (ty, p) = (frame.package_type()?, &frame.payload[..]);
         let accepted = |name: &'static str| -> Result<bool, DecodeError> {
             let mut r = Reader::new(name, p);
             let a = r.u8()? != 0;

@@ -105,6 +105,14 @@ pub struct Frame {
     pub payload: Bytes,
 }
 
+impl Frame {
+    /// The frame's package type; [`DecodeError::UnknownType`] for a byte no RTDE version
+    /// defines.
+    pub fn package_type(&self) -> Result<PackageType, DecodeError> {
+        PackageType::from_u8(self.type_byte).ok_or(DecodeError::UnknownType(self.type_byte))
+    }
+}
+
 /// Incremental framer: push bytes as they arrive, pop whole frames.
 ///
 /// TCP may split one package across reads or coalesce several into one; the framer does not
