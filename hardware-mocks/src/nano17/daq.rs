@@ -58,11 +58,9 @@ impl DaqMock {
         source: SharedWrenchSource,
         clock: Clock,
     ) -> io::Result<Self> {
-        let pty = PtyMaster::open()?;
-        let path = pty.path().to_owned();
-        Ok(Self::spawn(path, |faults, stats, stop| {
+        Self::spawn_on_pty(|pty, faults, stats, stop| {
             run(pty, cfg, model, source, clock, faults, stats, stop)
-        }))
+        })
     }
 }
 

@@ -35,6 +35,8 @@ use rig_core::ft::cal::{Calibration, GAUGE_RANGE_V};
 use rig_core::ft::transform::ToolTransform;
 use tokio::sync::oneshot;
 
+use pty::PtyMaster;
+
 pub use crate::truth::{ConstantWrench, SharedWrenchSource, WrenchSource};
 
 /// The configuration of one kind of simulated front end; says where the rig reaches it (a pty
@@ -97,6 +99,19 @@ impl<C: MockConfig> MockHandle<C> {
 }
 
 impl<C: MockConfig<Endpoint = PathBuf>> MockHandle<C> {
+    /// Opens a pty and spawns `run(pty, faults, stats, stop)` on it, reachable at its path.
+    pub(crate) fn spawn_on_pty<F, Fut>(run: F) -> std::io::Result<Self>
+    where
+        F: FnOnce(PtyMaster, Arc<Faults>, Arc<MockStats>, oneshot::Receiver<()>) -> Fut,
+        Fut: std::future::Future<Output = ()> + Send + 'static,
+    {
+        let pty = PtyMaster::open()?;
+        let path = pty.path().to_owned();
+        Ok(Self::spawn(path, |faults, stats, stop| {
+            run(pty, faults, stats, stop)
+        }))
+    }
+
     /// The pty path the rig opens.
     pub fn path(&self) -> &Path {
         &self.endpoint

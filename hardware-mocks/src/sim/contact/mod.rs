@@ -196,51 +196,44 @@ pub struct Material {
 impl Material {
     /// Checks the elastomer's values: `E > 0`, `0 ≤ ν < 0.5`, `h > 0`, `μ ≥ 0`, size > 0.
     pub fn from_config(c: &ElastomerConfig) -> Result<Self, SimError> {
-        let bad = |name, value: f64, reason: &str| SimError::InvalidParameter {
-            name,
-            value,
-            reason: reason.to_owned(),
-        };
-        let e = c.youngs_modulus_mpa;
-        if !(e.is_finite() && e > 0.0) {
-            return Err(bad(
-                "elastomer.youngs_modulus_mpa",
-                e,
-                "must be a finite number > 0",
-            ));
-        }
-        let nu = c.poisson_ratio;
-        if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
-            return Err(bad(
-                "elastomer.poisson_ratio",
-                nu,
-                "must be in [0, 0.5) (0.5 is incompressible: use 0.49)",
-            ));
-        }
-        let h = c.thickness_mm;
-        if !(h.is_finite() && h > 0.0) {
-            return Err(bad(
-                "elastomer.thickness_mm",
-                h,
-                "must be a finite number > 0",
-            ));
-        }
-        let mu = c.friction_coefficient;
-        if !(mu.is_finite() && mu >= 0.0) {
-            return Err(bad(
-                "elastomer.friction_coefficient",
-                mu,
-                "must be a finite number ≥ 0",
-            ));
-        }
-        for (name, v) in [
-            ("elastomer.size_x_mm", c.size_x_mm),
-            ("elastomer.size_y_mm", c.size_y_mm),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(bad(name, v, "must be a finite number > 0"));
+        // Each value must hold `ok`, else the error names it and says what it must be.
+        let check = |name, value: f64, ok: bool, reason: &str| {
+            if ok {
+                Ok(value)
+            } else {
+                Err(SimError::InvalidParameter {
+                    name,
+                    value,
+                    reason: reason.to_owned(),
+                })
             }
-        }
+        };
+        let positive = |name, v: f64| {
+            check(
+                name,
+                v,
+                v.is_finite() && v > 0.0,
+                "must be a finite number > 0",
+            )
+        };
+        let e = positive("elastomer.youngs_modulus_mpa", c.youngs_modulus_mpa)?;
+        let nu = c.poisson_ratio;
+        check(
+            "elastomer.poisson_ratio",
+            nu,
+            nu.is_finite() && (0.0..0.5).contains(&nu),
+            "must be in [0, 0.5) (0.5 is incompressible: use 0.49)",
+        )?;
+        let h = positive("elastomer.thickness_mm", c.thickness_mm)?;
+        let mu = c.friction_coefficient;
+        check(
+            "elastomer.friction_coefficient",
+            mu,
+            mu.is_finite() && mu >= 0.0,
+            "must be a finite number ≥ 0",
+        )?;
+        positive("elastomer.size_x_mm", c.size_x_mm)?;
+        positive("elastomer.size_y_mm", c.size_y_mm)?;
         Ok(Self {
             youngs_mpa: e,
             poisson: nu,

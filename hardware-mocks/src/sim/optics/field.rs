@@ -51,6 +51,18 @@ pub(crate) struct PixelField {
     pub flat: bool,
 }
 
+/// The two cells either side of fractional cell index `f` on an axis of `n` cells, and the
+/// weight of the second; `None` when `f` lies more than half a cell outside the axis.
+fn bracket(f: f64, n: usize) -> Option<(usize, usize, f32)> {
+    if f < -0.5 || f > n as f64 - 0.5 {
+        return None;
+    }
+    let f = f.clamp(0.0, (n - 1) as f64);
+    let i0 = (f.floor() as usize).min(n.saturating_sub(2));
+    let t = if n < 2 { 0.0 } else { (f - i0 as f64) as f32 };
+    Some((i0, (i0 + 1).min(n - 1), t))
+}
+
 /// Resamples `field` (bilinear; zero outside its grid, non-finite values read as zero) at the
 /// pixel centres of `raster`. Gradients are taken on the field's own grid by central
 /// differences and then interpolated, so a coarse field still shades smoothly.
@@ -113,24 +125,14 @@ pub(crate) fn resample(field: &SurfaceField, raster: &Raster) -> PixelField {
     let inv_cell = 1.0 / cell;
     for v in 0..raster.height {
         let y = raster.y_mm(v);
-        let fy = (y - field.origin_mm[1]) * inv_cell;
-        if fy < -0.5 || fy > ny as f64 - 0.5 {
+        let Some((j0, j1, ty)) = bracket((y - field.origin_mm[1]) * inv_cell, ny) else {
             continue;
-        }
-        let fy = fy.clamp(0.0, (ny - 1) as f64);
-        let j0 = (fy.floor() as usize).min(ny.saturating_sub(2));
-        let ty = if ny < 2 { 0.0 } else { (fy - j0 as f64) as f32 };
-        let j1 = (j0 + 1).min(ny - 1);
+        };
         for u in 0..raster.width {
             let x = raster.x_mm(u);
-            let fx = (x - field.origin_mm[0]) * inv_cell;
-            if fx < -0.5 || fx > nx as f64 - 0.5 {
+            let Some((i0, i1, tx)) = bracket((x - field.origin_mm[0]) * inv_cell, nx) else {
                 continue;
-            }
-            let fx = fx.clamp(0.0, (nx - 1) as f64);
-            let i0 = (fx.floor() as usize).min(nx.saturating_sub(2));
-            let tx = if nx < 2 { 0.0 } else { (fx - i0 as f64) as f32 };
-            let i1 = (i0 + 1).min(nx - 1);
+            };
             let (a, b, c, d) = (
                 &cells[j0 * nx + i0],
                 &cells[j0 * nx + i1],
