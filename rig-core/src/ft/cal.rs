@@ -352,39 +352,44 @@ impl Calibration {
 
         let fu = attr(cal, "ForceUnits")?;
         let tu = attr(cal, "TorqueUnits")?;
-        // A unit attribute's factor to N, N·mm, mm or rad, or an error listing what is known.
-        let factor = |name: &str, value: &str, to_si: fn(&str) -> Option<f64>, known: &str| {
-            to_si(value).ok_or_else(|| {
+        // Each unit attribute's factor to N, N·mm, mm or rad, or an error listing what is known.
+        type ToSi = fn(&str) -> Option<f64>;
+        let units: [(&str, &str, ToSi, &str); 4] = [
+            (
+                "ForceUnits",
+                fu,
+                force_unit_to_n,
+                "a known unit (N, lbf, kgf, kN)",
+            ),
+            (
+                "TorqueUnits",
+                tu,
+                torque_unit_to_nmm,
+                "a known unit (N-mm, N-m, lbf-in, lbf-ft, kgf-cm)",
+            ),
+            (
+                "DistUnits",
+                cal.attribute("DistUnits").unwrap_or("mm"),
+                dist_unit_to_mm,
+                "a known unit (mm, cm, m, in, ft)",
+            ),
+            (
+                "AngleUnits",
+                cal.attribute("AngleUnits").unwrap_or("degrees"),
+                angle_unit_to_rad,
+                "degrees or radians",
+            ),
+        ];
+        let mut factors = [0.0; 4];
+        for (k, (name, value, to_si, known)) in factors.iter_mut().zip(units) {
+            *k = to_si(value).ok_or_else(|| {
                 elem_err(
                     "<Calibration>",
                     format!("attribute `{name}` = {value:?} is not {known}"),
                 )
-            })
-        };
-        let f_k = factor(
-            "ForceUnits",
-            fu,
-            force_unit_to_n,
-            "a known unit (N, lbf, kgf, kN)",
-        )?;
-        let t_k = factor(
-            "TorqueUnits",
-            tu,
-            torque_unit_to_nmm,
-            "a known unit (N-mm, N-m, lbf-in, lbf-ft, kgf-cm)",
-        )?;
-        let d_k = factor(
-            "DistUnits",
-            cal.attribute("DistUnits").unwrap_or("mm"),
-            dist_unit_to_mm,
-            "a known unit (mm, cm, m, in, ft)",
-        )?;
-        let a_k = factor(
-            "AngleUnits",
-            cal.attribute("AngleUnits").unwrap_or("degrees"),
-            angle_unit_to_rad,
-            "degrees or radians",
-        )?;
+            })?;
+        }
+        let [f_k, t_k, d_k, a_k] = factors;
         let unit = |i: usize| if i < 3 { f_k } else { t_k };
 
         // Axis rows (required): values / scale, converted.

@@ -239,29 +239,27 @@ pub fn geometric_field(
 fn gaussian_grid(v: &[f64], nx: usize, ny: usize, sigma: f64) -> Vec<f64> {
     let kernel = gaussian_kernel(sigma);
     let r = kernel.len() / 2;
-    let mut tmp = vec![0.0; v.len()];
-    for j in 0..ny {
-        for i in 0..nx {
-            let mut s = 0.0;
-            for (t, w) in kernel.iter().enumerate() {
-                let ii = (i + t).saturating_sub(r).min(nx - 1);
-                s += w * v[j * nx + ii];
+    // One pass along x, then one along y: each output cell is the kernel-weighted sum of the
+    // cells `t - r` away along the pass's axis (index clamped to the grid).
+    let pass = |src: &[f64], along_x: bool| {
+        let mut dst = vec![0.0; src.len()];
+        for j in 0..ny {
+            for i in 0..nx {
+                let mut s = 0.0;
+                for (t, w) in kernel.iter().enumerate() {
+                    let k = if along_x {
+                        j * nx + (i + t).saturating_sub(r).min(nx - 1)
+                    } else {
+                        (j + t).saturating_sub(r).min(ny - 1) * nx + i
+                    };
+                    s += w * src[k];
+                }
+                dst[j * nx + i] = s;
             }
-            tmp[j * nx + i] = s;
         }
-    }
-    let mut out = vec![0.0; v.len()];
-    for j in 0..ny {
-        for i in 0..nx {
-            let mut s = 0.0;
-            for (t, w) in kernel.iter().enumerate() {
-                let jj = (j + t).saturating_sub(r).min(ny - 1);
-                s += w * tmp[jj * nx + i];
-            }
-            out[j * nx + i] = s;
-        }
-    }
-    out
+        dst
+    };
+    pass(&pass(v, true), false)
 }
 
 /// Normalised Gaussian taps over ±3σ (a single tap of 1 for σ ≈ 0).
