@@ -240,6 +240,18 @@ fn finite_number(node: roxmltree::Node, name: &str, text: &str) -> Result<f64, C
     Ok(v)
 }
 
+/// A row's `max` attribute (its axis's rated load), which must be positive.
+fn row_max(node: roxmltree::Node) -> Result<f64, CalError> {
+    let max = attr_f64(node, "max")?;
+    if max <= 0.0 {
+        return Err(elem_err(
+            describe(node),
+            format!("attribute `max` = {max} must be positive"),
+        ));
+    }
+    Ok(max)
+}
+
 fn attr_f64(node: roxmltree::Node, name: &str) -> Result<f64, CalError> {
     finite_number(node, name, attr(node, name)?)
 }
@@ -406,14 +418,7 @@ impl Calibration {
             for j in 0..6 {
                 basic[(i, j)] = values[j] / scale * unit(i);
             }
-            let max = attr_f64(*node, "max")?;
-            if max <= 0.0 {
-                return Err(elem_err(
-                    describe(*node),
-                    format!("attribute `max` = {max} must be positive"),
-                ));
-            }
-            max_loads[i] = max * unit(i);
+            max_loads[i] = row_max(*node)? * unit(i);
         }
 
         let mut bt = [0.0; 6];
@@ -439,14 +444,7 @@ impl Calibration {
                         m[(i, j)] = values[j] * unit(i);
                     }
                     if node.attribute("max").is_some() {
-                        let max = attr_f64(*node, "max")?;
-                        if max <= 0.0 {
-                            return Err(elem_err(
-                                describe(*node),
-                                format!("attribute `max` = {max} must be positive"),
-                            ));
-                        }
-                        max_loads[i] = max * unit(i);
+                        max_loads[i] = row_max(*node)? * unit(i);
                     }
                 }
                 (m, MatrixSource::UserAxis)
