@@ -13,8 +13,12 @@ use criterion::{Criterion, Throughput, criterion_group};
 use rig_core::ft::NANO17_SI_25_MAX;
 use rig_core::ft::cal::Calibration;
 use rig_core::ft::daq::{DaqFrame, DaqParser};
-use rig_core::ft::netft::{RdtRecord, SequenceTracker};
-use rig_core::ft::serial::{CountsRecord, OutputMode, SerialEvent, SerialParser, plausible_counts};
+use rig_core::ft::netft::{FACTORY_COUNTS_PER_FORCE, FACTORY_COUNTS_PER_TORQUE, RdtRecord};
+use rig_core::ft::sequence::SequenceTracker;
+use rig_core::ft::serial::{
+    CountsRecord, DEFAULT_COUNTS_PER_FORCE as CPF, DEFAULT_COUNTS_PER_TORQUE as CPT, OutputMode,
+    SerialEvent, SerialParser, plausible_counts,
+};
 
 const N: usize = 10_000;
 const CAL: &str = include_str!("../../tests/data/nano17_useraxis.cal");
@@ -50,13 +54,13 @@ fn serial_bytes(mode: OutputMode) -> Vec<u8> {
 }
 
 fn parse_serial(bytes: &[u8], mode: OutputMode) -> f64 {
-    let mut p = SerialParser::new(mode, plausible_counts(&NANO17_SI_25_MAX, 320.0, 64.0, 1.5));
+    let mut p = SerialParser::new(mode, plausible_counts(&NANO17_SI_25_MAX, CPF, CPT, 1.5));
     let mut acc = 0.0;
     for c in bytes.chunks(4096) {
         p.push(c);
         while let Some(e) = p.next_event() {
             if let SerialEvent::Record(r) = e {
-                acc += r.to_wrench(320.0, 64.0)[2];
+                acc += r.to_wrench(CPF, CPT)[2];
             }
         }
     }
@@ -83,7 +87,7 @@ fn parse_rdt(d: &[[u8; 36]]) -> f64 {
     for g in d {
         if let Ok(r) = RdtRecord::decode(g) {
             t.observe(r.rdt_sequence);
-            acc += r.to_wrench(1e6, 1e3)[2];
+            acc += r.to_wrench(FACTORY_COUNTS_PER_FORCE, FACTORY_COUNTS_PER_TORQUE)[2];
         }
     }
     acc

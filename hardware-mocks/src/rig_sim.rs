@@ -64,6 +64,7 @@ use std::time::Duration;
 
 use rig_core::clock::Clock;
 use rig_core::config::{ElastomerConfig, RigConfig};
+use rig_core::ft::netft;
 use rig_core::ft::transform::ToolTransform;
 use rig_core::indenter::Indenter;
 use rig_core::optics::OpticsConfig;
@@ -717,14 +718,18 @@ impl SimRig {
         let rate_hz = opts
             .netft_rate_hz
             .or(fs.map(|f| f.rate_hz))
-            .unwrap_or(1000.0);
+            .unwrap_or(rig_core::ft::DEFAULT_RATE_HZ);
         let source: SharedWrenchSource = Arc::new(physics.clone());
         let ft = match opts.ft_front_end {
             SimFtFrontEnd::NetFt => {
                 let nf_cfg = NetFtMockConfig {
                     rate_hz,
-                    counts_per_force: fs.and_then(|f| f.counts_per_force).unwrap_or(1e6),
-                    counts_per_torque: fs.and_then(|f| f.counts_per_torque).unwrap_or(1e3),
+                    counts_per_force: fs
+                        .and_then(|f| f.counts_per_force)
+                        .unwrap_or(netft::FACTORY_COUNTS_PER_FORCE),
+                    counts_per_torque: fs
+                        .and_then(|f| f.counts_per_torque)
+                        .unwrap_or(netft::FACTORY_COUNTS_PER_TORQUE),
                     seed: opts.netft_seed,
                     ..NetFtMockConfig::default()
                 };

@@ -44,49 +44,84 @@ pub const OUT_STATUS: u32 = 26;
 /// Default minimum heartbeat rate for the watchdog, Hz.
 pub const WATCHDOG_MIN_HZ: f64 = 10.0;
 
-/// What the rig asks the program to do.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(i32)]
-pub enum CommandKind {
-    /// Nothing (initial register value).
-    None = 0,
-    /// moveL to the target pose with the given speed and acceleration.
-    MoveL = 1,
-    /// Decelerate to a stop with the given acceleration (stopl).
-    Stop = 2,
+/// An enum of integer codes that travel in registers or RTDE fields, each with its name: the
+/// variants, `ALL`, the code-to-variant function and `name()` come from one table, so a code
+/// and its name are written once. With `mod m`, the table also gives a module of `i32` / `u32`
+/// constants named as the values are (`m::RUNNING`), for code that handles raw RTDE values.
+macro_rules! coded_enum {
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident: $repr:ident, fn $from:ident {
+            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $konst:ident, )*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        #[repr($repr)]
+        $vis enum $name {
+            $( $(#[$vmeta])* $variant = $code, )*
+        }
+
+        impl $name {
+            /// Every value, in code order.
+            pub const ALL: &'static [Self] = &[$(Self::$variant),*];
+
+            /// The value of a code, `None` for a code that has none.
+            pub fn $from(code: $repr) -> Option<Self> {
+                Self::ALL.iter().copied().find(|v| *v as $repr == code)
+            }
+
+            /// The name of the value (see the type's docs for whose spelling).
+            pub const fn name(self) -> &'static str {
+                match self {
+                    $( Self::$variant => stringify!($konst), )*
+                }
+            }
+        }
+    };
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident: $repr:ident, fn $from:ident,
+        $(#[$cmeta:meta])*
+        mod $consts:ident {
+            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $konst:ident, )*
+        }
+    ) => {
+        coded_enum! {
+            $(#[$meta])*
+            $vis enum $name: $repr, fn $from {
+                $( $(#[$vmeta])* $variant = $code => $konst, )*
+            }
+        }
+
+        $(#[$cmeta])*
+        pub mod $consts {
+            $( pub const $konst: $repr = super::$name::$variant as $repr; )*
+        }
+    };
 }
 
-impl CommandKind {
-    pub fn from_i32(v: i32) -> Option<Self> {
-        match v {
-            0 => Some(Self::None),
-            1 => Some(Self::MoveL),
-            2 => Some(Self::Stop),
-            _ => None,
-        }
+coded_enum! {
+    /// What the rig asks the program to do (names: the URScript it stands for, in capitals).
+    pub enum CommandKind: i32, fn from_i32 {
+        /// Nothing (initial register value).
+        None = 0 => NONE,
+        /// moveL to the target pose with the given speed and acceleration.
+        MoveL = 1 => MOVEL,
+        /// Decelerate to a stop with the given acceleration (stopl).
+        Stop = 2 => STOPL,
     }
 }
 
-/// What the program reports in [`OUT_STATUS`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(i32)]
-pub enum ProgramStatus {
-    /// Waiting for a command.
-    Idle = 0,
-    /// Executing a moveL.
-    Moving = 1,
-    /// A command was refused (unknown kind, non-finite or non-positive speed/acceleration).
-    Rejected = 2,
-}
-
-impl ProgramStatus {
-    pub fn from_i32(v: i32) -> Option<Self> {
-        match v {
-            0 => Some(Self::Idle),
-            1 => Some(Self::Moving),
-            2 => Some(Self::Rejected),
-            _ => None,
-        }
+coded_enum! {
+    /// What the program reports in [`OUT_STATUS`].
+    pub enum ProgramStatus: i32, fn from_i32 {
+        /// Waiting for a command.
+        Idle = 0 => IDLE,
+        /// Executing a moveL.
+        Moving = 1 => MOVING,
+        /// A command was refused (unknown kind, non-finite or non-positive speed/acceleration).
+        Rejected = 2 => REJECTED,
     }
 }
 
@@ -104,41 +139,78 @@ pub fn output_double(n: u32) -> String {
     format!("output_double_register_{n}")
 }
 
-/// UR robot_mode values (RTDE guide).
-pub mod robot_mode {
-    pub const NO_CONTROLLER: i32 = -1;
-    pub const DISCONNECTED: i32 = 0;
-    pub const CONFIRM_SAFETY: i32 = 1;
-    pub const BOOTING: i32 = 2;
-    pub const POWER_OFF: i32 = 3;
-    pub const POWER_ON: i32 = 4;
-    pub const IDLE: i32 = 5;
-    pub const BACKDRIVE: i32 = 6;
-    pub const RUNNING: i32 = 7;
-    pub const UPDATING_FIRMWARE: i32 = 8;
+/// Name of a mode value that no [`RobotMode`], [`SafetyMode`] or [`RuntimeState`] has.
+pub const UNKNOWN_MODE_NAME: &str = "UNKNOWN";
+
+coded_enum! {
+    /// UR robot_mode (RTDE guide: `robot_mode`; dashboard server: `robotmode`). Names as the
+    /// dashboard server prints them (`Robotmode: RUNNING`) and the RTDE guide lists them
+    /// (there with a `ROBOT_MODE_` prefix).
+    pub enum RobotMode: i32, fn from_i32,
+    /// UR robot_mode values as the `i32` RTDE carries ([`RobotMode`]).
+    mod robot_mode {
+        NoController = -1 => NO_CONTROLLER,
+        Disconnected = 0 => DISCONNECTED,
+        ConfirmSafety = 1 => CONFIRM_SAFETY,
+        Booting = 2 => BOOTING,
+        PowerOff = 3 => POWER_OFF,
+        PowerOn = 4 => POWER_ON,
+        Idle = 5 => IDLE,
+        Backdrive = 6 => BACKDRIVE,
+        Running = 7 => RUNNING,
+        UpdatingFirmware = 8 => UPDATING_FIRMWARE,
+    }
 }
 
-/// UR safety_mode values (RTDE guide).
-pub mod safety_mode {
-    pub const NORMAL: i32 = 1;
-    pub const REDUCED: i32 = 2;
-    pub const PROTECTIVE_STOP: i32 = 3;
-    pub const RECOVERY: i32 = 4;
-    pub const SAFEGUARD_STOP: i32 = 5;
-    pub const SYSTEM_EMERGENCY_STOP: i32 = 6;
-    pub const ROBOT_EMERGENCY_STOP: i32 = 7;
-    pub const VIOLATION: i32 = 8;
-    pub const FAULT: i32 = 9;
+coded_enum! {
+    /// UR safety_mode (RTDE guide: `safety_mode`; dashboard server: `safetymode`). Names as the
+    /// dashboard server prints them (`Safetymode: PROTECTIVE_STOP`).
+    pub enum SafetyMode: i32, fn from_i32,
+    /// UR safety_mode values as the `i32` RTDE carries ([`SafetyMode`]).
+    mod safety_mode {
+        Normal = 1 => NORMAL,
+        Reduced = 2 => REDUCED,
+        ProtectiveStop = 3 => PROTECTIVE_STOP,
+        Recovery = 4 => RECOVERY,
+        SafeguardStop = 5 => SAFEGUARD_STOP,
+        SystemEmergencyStop = 6 => SYSTEM_EMERGENCY_STOP,
+        RobotEmergencyStop = 7 => ROBOT_EMERGENCY_STOP,
+        Violation = 8 => VIOLATION,
+        Fault = 9 => FAULT,
+    }
 }
 
-/// UR runtime_state values (RTDE guide).
-pub mod runtime_state {
-    pub const STOPPING: u32 = 0;
-    pub const STOPPED: u32 = 1;
-    pub const PLAYING: u32 = 2;
-    pub const PAUSING: u32 = 3;
-    pub const PAUSED: u32 = 4;
-    pub const RESUMING: u32 = 5;
+coded_enum! {
+    /// UR runtime_state of the program (RTDE guide: `runtime_state`). Names in capitals, as the
+    /// dashboard server's `programState` prints them (`PLAYING`).
+    pub enum RuntimeState: u32, fn from_u32,
+    /// UR runtime_state values as the `u32` RTDE carries ([`RuntimeState`]).
+    mod runtime_state {
+        Stopping = 0 => STOPPING,
+        Stopped = 1 => STOPPED,
+        Playing = 2 => PLAYING,
+        Pausing = 3 => PAUSING,
+        Paused = 4 => PAUSED,
+        Resuming = 5 => RESUMING,
+    }
+}
+
+/// The name of an RTDE `robot_mode` value ([`RobotMode::name`]), [`UNKNOWN_MODE_NAME`] for a
+/// value UR does not define.
+pub fn robot_mode_name(v: i32) -> &'static str {
+    RobotMode::from_i32(v).map_or(UNKNOWN_MODE_NAME, RobotMode::name)
+}
+
+/// The name of an RTDE `safety_mode` value ([`SafetyMode::name`]), [`UNKNOWN_MODE_NAME`] for a
+/// value UR does not define.
+pub fn safety_mode_name(v: i32) -> &'static str {
+    SafetyMode::from_i32(v).map_or(UNKNOWN_MODE_NAME, SafetyMode::name)
+}
+
+/// The name of an RTDE `runtime_state` value ([`RuntimeState::name`]), [`UNKNOWN_MODE_NAME`]
+/// for a value UR does not define.
+pub fn runtime_state_name(v: u32) -> &'static str {
+    RuntimeState::from_u32(v).map_or(UNKNOWN_MODE_NAME, RuntimeState::name)
 }
 
 /// Whether the controller state allows motion: robot RUNNING, safety NORMAL or REDUCED, and
@@ -167,6 +239,28 @@ mod tests {
         for n in [OUT_ACK_SEQ, OUT_DONE_SEQ, OUT_STATUS] {
             assert!(fields::output_type(&output_int(n)).is_some());
         }
+    }
+
+    #[test]
+    fn mode_names_round_trip_and_unknown_values_are_named_unknown() {
+        for &m in RobotMode::ALL {
+            assert_eq!(robot_mode_name(m as i32), m.name());
+        }
+        for &m in SafetyMode::ALL {
+            assert_eq!(safety_mode_name(m as i32), m.name());
+        }
+        for &m in RuntimeState::ALL {
+            assert_eq!(runtime_state_name(m as u32), m.name());
+        }
+        assert_eq!(robot_mode_name(robot_mode::RUNNING), "RUNNING");
+        assert_eq!(
+            safety_mode_name(safety_mode::PROTECTIVE_STOP),
+            "PROTECTIVE_STOP"
+        );
+        assert_eq!(runtime_state_name(runtime_state::PLAYING), "PLAYING");
+        assert_eq!(robot_mode_name(42), UNKNOWN_MODE_NAME);
+        assert_eq!(safety_mode_name(0), UNKNOWN_MODE_NAME);
+        assert_eq!(runtime_state_name(6), UNKNOWN_MODE_NAME);
     }
 
     #[test]

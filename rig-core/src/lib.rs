@@ -12,5 +12,6 @@ pub mod ft;
 pub mod indenter;
 pub mod optics;
 pub mod pose;
+pub mod problem;
 pub mod rtde;
 pub mod wrench;

@@ -21,7 +21,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::Problem;
+use crate::problem::Problem;
 
 /// Largest image side the simulator renders, pixels (a typo must not allocate gigabytes).
 pub const MAX_SIDE_PX: u32 = 4096;

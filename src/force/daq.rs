@@ -13,9 +13,11 @@ use std::time::Duration;
 use rig_core::clock::Clock;
 use rig_core::ft::SampleFlags;
 use rig_core::ft::daq::{DaqParser, STATUS_ADC_FAULT};
-use rig_core::ft::netft::{Arrival, SequenceTracker};
+use rig_core::ft::sequence::SequenceTracker;
 
-use super::{Conditioner, Control, FrontEndSettings, FtError, FtStats, FtStream, RawMap};
+use super::conditioning::{Conditioner, FrontEndSettings, RawMap};
+use super::error::FtError;
+use super::stream::{Control, FtStats, FtStream};
 
 /// Read timeout of the port (how often the reader looks at its controls).
 pub const READ_TIMEOUT: Duration = Duration::from_millis(50);
@@ -56,7 +58,6 @@ pub async fn open(
             let mut parser = DaqParser::new();
             let mut tracker = SequenceTracker::new();
             let mut buf = vec![0u8; 8192];
-            let mut unwrapped: Option<u64> = None;
             'outer: loop {
                 loop {
                     match ctl.try_recv() {
@@ -96,25 +97,12 @@ pub async fn open(
                 let t_host_ns = clock.now_ns();
                 parser.push(&buf[..n]);
                 while let Some(f) = parser.next_frame() {
-                    let mut flags = SampleFlags::NONE;
-                    match tracker.observe(f.sequence) {
-                        Arrival::Duplicate => continue,
-                        Arrival::AfterGap { .. } => flags |= SampleFlags::AFTER_GAP,
-                        Arrival::Late => flags |= SampleFlags::REORDERED,
-                        _ => {}
-                    }
+                    let (arrival, seq) = tracker.observe_unwrapped(f.sequence);
+                    let Some(mut flags) = arrival.sample_flags() else {
+                        continue;
+                    };
                     if f.saturated_gauges() != 0 {
                         flags |= SampleFlags::GAUGE_SATURATED;
-                    }
-                    let seq = match unwrapped {
-                        None => u64::from(f.sequence),
-                        Some(prev) => {
-                            let d = f.sequence.wrapping_sub(prev as u32) as i32;
-                            prev.wrapping_add_signed(i64::from(d))
-                        }
-                    };
-                    if unwrapped.is_none_or(|p| seq > p) {
-                        unwrapped = Some(seq);
                     }
                     let status = u32::from(f.status & (0x3f | STATUS_ADC_FAULT));
                     if !sink.condition_and_deliver(

@@ -3,21 +3,24 @@
 //! One tokio task owns a UDP socket connected to the box: it sends the start request
 //! (command 2, sample count 0 = until stopped), optionally a software bias (0x42) first, and
 //! then receives datagrams. Each record's `rdt_sequence` goes through the
-//! [`SequenceTracker`]: a gap flags the next sample [`SampleFlags::AFTER_GAP`], a late packet
-//! is delivered flagged [`SampleFlags::REORDERED`] (the consumer sorts by `device_seq` if it
-//! needs order), a duplicate is dropped; all are counted exactly. Datagrams that are not whole
-//! records are counted as garbage. On stop the task sends command 0. No datagram for
-//! [`SILENCE_TIMEOUT`] ends the stream with an error.
+//! [`SequenceTracker`], which also gives the unwrapped `device_seq`: a sample after a gap is
+//! flagged `AFTER_GAP`, a late packet is delivered flagged `REORDERED` (the consumer sorts by
+//! `device_seq` if it needs order), a duplicate is dropped
+//! ([`Arrival::sample_flags`](rig_core::ft::sequence::Arrival::sample_flags)); all are counted
+//! exactly. Datagrams that are not whole records are counted as garbage. On stop the task
+//! sends command 0. No datagram for [`SILENCE_TIMEOUT`] ends the stream with an error.
 
 use std::net::SocketAddr;
 use std::time::Duration;
 
 use rig_core::clock::Clock;
-use rig_core::ft::SampleFlags;
-use rig_core::ft::netft::{Arrival, RDT_PORT, RdtCommand, RdtRecord, RdtRequest, SequenceTracker};
+use rig_core::ft::netft::{RDT_PORT, RdtCommand, RdtRecord, RdtRequest};
+use rig_core::ft::sequence::SequenceTracker;
 use tokio::net::UdpSocket;
 
-use super::{Control, FrontEndSettings, FtError, FtStats, FtStream};
+use super::conditioning::FrontEndSettings;
+use super::error::FtError;
+use super::stream::{Control, FtStats, FtStream};
 
 /// Clock time without any datagram after which the box counts as gone.
 pub const SILENCE_TIMEOUT: Duration = Duration::from_secs(2);
@@ -80,8 +83,6 @@ pub async fn open(
     tokio::spawn(async move {
         let mut tracker = SequenceTracker::new();
         let mut buf = vec![0u8; 2048];
-        let mut unwrapped: Option<u64> = None;
-        let mut pending_gap = false;
         loop {
             let recv = clock.timeout(SILENCE_TIMEOUT, sock.recv(&mut buf));
             tokio::select! {
@@ -109,29 +110,8 @@ pub async fn open(
                     };
                     let mut stop = false;
                     for rec in records {
-                        let arrival = tracker.observe(rec.rdt_sequence);
-                        let mut flags = SampleFlags::NONE;
-                        match arrival {
-                            Arrival::Duplicate => continue,
-                            Arrival::AfterGap { .. } => flags |= SampleFlags::AFTER_GAP,
-                            Arrival::Late => flags |= SampleFlags::REORDERED,
-                            Arrival::First | Arrival::InOrder => {}
-                        }
-                        if pending_gap && arrival != Arrival::Late {
-                            flags |= SampleFlags::AFTER_GAP;
-                            pending_gap = false;
-                        }
-                        // Unwrap the u32 sequence against the newest seen.
-                        let seq = match unwrapped {
-                            None => u64::from(rec.rdt_sequence),
-                            Some(prev) => {
-                                let d = rec.rdt_sequence.wrapping_sub(prev as u32) as i32;
-                                prev.wrapping_add_signed(i64::from(d))
-                            }
-                        };
-                        if unwrapped.is_none_or(|p| seq > p) {
-                            unwrapped = Some(seq);
-                        }
+                        let (arrival, seq) = tracker.observe_unwrapped(rec.rdt_sequence);
+                        let Some(flags) = arrival.sample_flags() else { continue };
                         let raw = rec.counts.map(f64::from);
                         if !sink.condition_and_deliver(&mut cond, &raw, None, rec.status, flags, t_host_ns, seq) {
                             stop = true;

@@ -19,7 +19,9 @@ use rig_core::ft::serial::{
 };
 use tokio::sync::mpsc::UnboundedReceiver;
 
-use super::{Control, FrontEndSettings, FtError, FtStats, FtStream, Sink};
+use super::conditioning::{Conditioner, FrontEndSettings};
+use super::error::FtError;
+use super::stream::{Control, FtStats, FtStream, Sink};
 
 /// How long the controller may take to answer a command.
 pub const COMMAND_TIMEOUT: Duration = Duration::from_secs(1);
@@ -111,7 +113,7 @@ struct Reader {
     port: serialport::TTYPort,
     opts: SerialOptions,
     parser: SerialParser,
-    cond: super::Conditioner,
+    cond: Conditioner,
     sink: Sink,
     clock: Clock,
     buf: Vec<u8>,

@@ -125,54 +125,10 @@ impl RobotState {
     }
 }
 
-/// UR's name of a robot_mode value (RTDE guide).
-pub fn robot_mode_name(m: i32) -> &'static str {
-    use control::robot_mode::*;
-    match m {
-        NO_CONTROLLER => "NO_CONTROLLER",
-        DISCONNECTED => "DISCONNECTED",
-        CONFIRM_SAFETY => "CONFIRM_SAFETY",
-        BOOTING => "BOOTING",
-        POWER_OFF => "POWER_OFF",
-        POWER_ON => "POWER_ON",
-        IDLE => "IDLE",
-        BACKDRIVE => "BACKDRIVE",
-        RUNNING => "RUNNING",
-        UPDATING_FIRMWARE => "UPDATING_FIRMWARE",
-        _ => "unknown",
-    }
-}
-
-/// UR's name of a safety_mode value (RTDE guide).
-pub fn safety_mode_name(m: i32) -> &'static str {
-    use control::safety_mode::*;
-    match m {
-        NORMAL => "NORMAL",
-        REDUCED => "REDUCED",
-        PROTECTIVE_STOP => "PROTECTIVE_STOP",
-        RECOVERY => "RECOVERY",
-        SAFEGUARD_STOP => "SAFEGUARD_STOP",
-        SYSTEM_EMERGENCY_STOP => "SYSTEM_EMERGENCY_STOP",
-        ROBOT_EMERGENCY_STOP => "ROBOT_EMERGENCY_STOP",
-        VIOLATION => "VIOLATION",
-        FAULT => "FAULT",
-        _ => "unknown",
-    }
-}
-
-/// UR's name of a runtime_state value (RTDE guide).
-pub fn runtime_state_name(s: u32) -> &'static str {
-    use control::runtime_state::*;
-    match s {
-        STOPPING => "STOPPING",
-        STOPPED => "STOPPED",
-        PLAYING => "PLAYING",
-        PAUSING => "PAUSING",
-        PAUSED => "PAUSED",
-        RESUMING => "RESUMING",
-        _ => "unknown",
-    }
-}
+/// UR's names of the mode values (`RUNNING`, `PROTECTIVE_STOP`, `PLAYING`; `UNKNOWN` for a
+/// value UR does not define), from [`rig_core::control`], which the simulated controller uses
+/// too.
+pub use rig_core::control::{robot_mode_name, runtime_state_name, safety_mode_name};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Slot {

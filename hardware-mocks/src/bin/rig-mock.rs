@@ -24,6 +24,7 @@ use std::net::{IpAddr, SocketAddr};
 
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
+use hardware_mocks::nano17::{MockConfig, MockHandle};
 use hardware_mocks::ur5e::{Ur5e, Ur5eConfig};
 use rig_core::clock::Clock;
 use rig_core::control::robot_mode;
@@ -56,7 +57,7 @@ enum Mock {
 #[derive(clap::Args, Debug)]
 struct Nano17Args {
     /// Records per second.
-    #[arg(long, default_value_t = 1000.0)]
+    #[arg(long, default_value_t = rig_core::ft::DEFAULT_RATE_HZ)]
     rate_hz: f64,
     /// Serial controller output mode at power-up (the rig sets it with CD A / CD B anyway).
     #[arg(long, value_enum, default_value_t = ModeArg::Ascii)]
@@ -81,7 +82,7 @@ struct NetftArgs {
     #[arg(long, default_value = "127.0.0.1")]
     host: IpAddr,
     /// Records per second (a real Net F/T: up to 7000).
-    #[arg(long, default_value_t = 7000.0)]
+    #[arg(long, default_value_t = rig_core::ft::netft::MAX_RDT_RATE_HZ)]
     rate_hz: f64,
     /// Constant true load Fx,Fy,Fz,Tx,Ty,Tz (N, N·mm).
     #[arg(long, value_parser = parse_pose, allow_hyphen_values = true)]
@@ -109,6 +110,17 @@ fn ready(line: String) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Prints the ready line, runs until SIGINT or SIGTERM, then shuts the F/T mock down.
+async fn serve_until_signal<C: MockConfig>(
+    mock: MockHandle<C>,
+    ready_line: String,
+) -> anyhow::Result<()> {
+    ready(ready_line)?;
+    wait_for_signal().await?;
+    mock.shutdown().await;
+    Ok(())
+}
+
 async fn run_nano17_serial(args: Nano17Args) -> anyhow::Result<()> {
     use hardware_mocks::nano17::{SensorModel, serial};
     check_rate(args.rate_hz)?;
@@ -127,10 +139,8 @@ async fn run_nano17_serial(args: Nano17Args) -> anyhow::Result<()> {
         Clock::system(),
     )
     .context("could not open a pty for the simulated F/T controller")?;
-    ready(format!("nano17-serial ready pty={}", mock.path().display()))?;
-    wait_for_signal().await?;
-    mock.shutdown().await;
-    Ok(())
+    let line = format!("nano17-serial ready pty={}", mock.path().display());
+    serve_until_signal(mock, line).await
 }
 
 async fn run_nano17_daq(args: Nano17Args) -> anyhow::Result<()> {
@@ -146,10 +156,8 @@ async fn run_nano17_daq(args: Nano17Args) -> anyhow::Result<()> {
         Clock::system(),
     )
     .context("could not open a pty for the simulated DAQ")?;
-    ready(format!("nano17-daq ready pty={}", mock.path().display()))?;
-    wait_for_signal().await?;
-    mock.shutdown().await;
-    Ok(())
+    let line = format!("nano17-daq ready pty={}", mock.path().display());
+    serve_until_signal(mock, line).await
 }
 
 async fn run_netft(args: NetftArgs) -> anyhow::Result<()> {
@@ -172,10 +180,8 @@ async fn run_netft(args: NetftArgs) -> anyhow::Result<()> {
             args.host, args.port
         )
     })?;
-    ready(format!("netft ready addr={}", mock.addr()))?;
-    wait_for_signal().await?;
-    mock.shutdown().await;
-    Ok(())
+    let line = format!("netft ready addr={}", mock.addr());
+    serve_until_signal(mock, line).await
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]

@@ -11,7 +11,7 @@
 //! saturation, and unplugging (the pty master closes).
 
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
@@ -20,7 +20,9 @@ use rig_core::ft::daq::DaqFrame;
 use tokio::sync::oneshot;
 
 use super::pty::PtyMaster;
-use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{
+    Faults, MockConfig, MockHandle, MockStats, SensorModel, SharedWrenchSource, sample_time_ns,
+};
 
 /// Configuration of the simulated DAQ front end.
 #[derive(Debug, Clone)]
@@ -34,7 +36,7 @@ pub struct DaqMockConfig {
 impl Default for DaqMockConfig {
     fn default() -> Self {
         Self {
-            rate_hz: 1000.0,
+            rate_hz: rig_core::ft::DEFAULT_RATE_HZ,
             thermistor: true,
             seed: 7,
         }
@@ -42,9 +44,10 @@ impl Default for DaqMockConfig {
 }
 
 /// A running simulated DAQ front end.
-pub struct DaqMock {
-    path: PathBuf,
-    running: Running,
+pub type DaqMock = MockHandle<DaqMockConfig>;
+
+impl MockConfig for DaqMockConfig {
+    type Endpoint = PathBuf;
 }
 
 impl DaqMock {
@@ -55,26 +58,9 @@ impl DaqMock {
         source: SharedWrenchSource,
         clock: Clock,
     ) -> io::Result<Self> {
-        let pty = PtyMaster::open()?;
-        let path = pty.path().to_owned();
-        let running = Running::spawn(|faults, stats, stop| {
+        Self::spawn_on_pty(|pty, faults, stats, stop| {
             run(pty, cfg, model, source, clock, faults, stats, stop)
-        });
-        Ok(Self { path, running })
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-    pub fn faults(&self) -> &Arc<Faults> {
-        self.running.faults()
-    }
-    pub fn stats(&self) -> &Arc<MockStats> {
-        self.running.stats()
-    }
-
-    pub async fn shutdown(self) {
-        self.running.shutdown().await;
+        })
     }
 }
 

@@ -25,40 +25,51 @@ pub mod netft;
 pub mod pty;
 pub mod serial;
 
-use std::sync::Mutex;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 use rig_core::ft::NANO17_SI_25_RESOLUTION;
 use rig_core::ft::cal::{Calibration, GAUGE_RANGE_V};
 use rig_core::ft::transform::ToolTransform;
+use tokio::sync::oneshot;
+
+use pty::PtyMaster;
 
 pub use crate::truth::{ConstantWrench, SharedWrenchSource, WrenchSource};
 
-/// The task of a running simulated front end, with its fault injector and counters. Shutdown
-/// is a graceful stop signal; dropping it aborts the task.
-pub(crate) struct Running {
-    faults: std::sync::Arc<Faults>,
-    stats: std::sync::Arc<MockStats>,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
+/// The configuration of one kind of simulated front end; says where the rig reaches it (a pty
+/// path, a UDP address). Each kind's [`MockHandle`] has its own `start`.
+pub trait MockConfig {
+    /// Where the rig reaches a running mock: [`PathBuf`] for a pty, [`SocketAddr`] for UDP.
+    type Endpoint;
+}
+
+/// A running simulated front end: where it is, its fault injector and counters, and its task.
+/// [`MockHandle::shutdown`] is a graceful stop; dropping the handle aborts the task. The three
+/// kinds are [`daq::DaqMock`], [`serial::SerialControllerMock`] and [`netft::NetFtMock`].
+pub struct MockHandle<C: MockConfig> {
+    endpoint: C::Endpoint,
+    faults: Arc<Faults>,
+    stats: Arc<MockStats>,
+    stop: Option<oneshot::Sender<()>>,
     task: Option<tokio::task::JoinHandle<()>>,
 }
 
-impl Running {
-    /// Spawn `run(faults, stats, stop)` on the current tokio runtime.
-    pub(crate) fn spawn<F, Fut>(run: F) -> Self
+impl<C: MockConfig> MockHandle<C> {
+    /// Spawns `run(faults, stats, stop)` on the current tokio runtime, reachable at `endpoint`.
+    pub(crate) fn spawn<F, Fut>(endpoint: C::Endpoint, run: F) -> Self
     where
-        F: FnOnce(
-            std::sync::Arc<Faults>,
-            std::sync::Arc<MockStats>,
-            tokio::sync::oneshot::Receiver<()>,
-        ) -> Fut,
+        F: FnOnce(Arc<Faults>, Arc<MockStats>, oneshot::Receiver<()>) -> Fut,
         Fut: std::future::Future<Output = ()> + Send + 'static,
     {
-        let faults = std::sync::Arc::new(Faults::default());
-        let stats = std::sync::Arc::new(MockStats::default());
-        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel();
+        let faults = Arc::new(Faults::default());
+        let stats = Arc::new(MockStats::default());
+        let (stop_tx, stop_rx) = oneshot::channel();
         let task = tokio::spawn(run(faults.clone(), stats.clone(), stop_rx));
         Self {
+            endpoint,
             faults,
             stats,
             stop: Some(stop_tx),
@@ -66,16 +77,18 @@ impl Running {
         }
     }
 
-    pub(crate) fn faults(&self) -> &std::sync::Arc<Faults> {
+    /// The fault injector.
+    pub fn faults(&self) -> &Arc<Faults> {
         &self.faults
     }
 
-    pub(crate) fn stats(&self) -> &std::sync::Arc<MockStats> {
+    /// What the mock did, for exact comparison with what the rig counted.
+    pub fn stats(&self) -> &Arc<MockStats> {
         &self.stats
     }
 
-    /// Signal the task to stop and wait for it.
-    pub(crate) async fn shutdown(mut self) {
+    /// Stops the mock (it closes its pty or socket) and waits for it.
+    pub async fn shutdown(mut self) {
         if let Some(s) = self.stop.take() {
             let _ = s.send(());
         }
@@ -85,7 +98,34 @@ impl Running {
     }
 }
 
-impl Drop for Running {
+impl<C: MockConfig<Endpoint = PathBuf>> MockHandle<C> {
+    /// Opens a pty and spawns `run(pty, faults, stats, stop)` on it, reachable at its path.
+    pub(crate) fn spawn_on_pty<F, Fut>(run: F) -> std::io::Result<Self>
+    where
+        F: FnOnce(PtyMaster, Arc<Faults>, Arc<MockStats>, oneshot::Receiver<()>) -> Fut,
+        Fut: std::future::Future<Output = ()> + Send + 'static,
+    {
+        let pty = PtyMaster::open()?;
+        let path = pty.path().to_owned();
+        Ok(Self::spawn(path, |faults, stats, stop| {
+            run(pty, faults, stats, stop)
+        }))
+    }
+
+    /// The pty path the rig opens.
+    pub fn path(&self) -> &Path {
+        &self.endpoint
+    }
+}
+
+impl<C: MockConfig<Endpoint = SocketAddr>> MockHandle<C> {
+    /// The UDP address the rig sends its requests to.
+    pub fn addr(&self) -> SocketAddr {
+        self.endpoint
+    }
+}
+
+impl<C: MockConfig> Drop for MockHandle<C> {
     fn drop(&mut self) {
         if let Some(t) = &self.task {
             t.abort();

@@ -18,11 +18,17 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
 use rig_core::clock::Clock;
-use rig_core::ft::netft::{RdtCommand, RdtRecord, RdtRequest, STATUS_ERROR};
+use rig_core::ft::netft::{
+    FACTORY_COUNTS_PER_FORCE, FACTORY_COUNTS_PER_TORQUE, MAX_RDT_RATE_HZ, RdtCommand, RdtRecord,
+    RdtRequest, STATUS_ERROR,
+};
+use rig_core::ft::wrench_to_counts;
 use tokio::net::UdpSocket;
 use tokio::sync::oneshot;
 
-use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{
+    Faults, MockConfig, MockHandle, MockStats, SensorModel, SharedWrenchSource, sample_time_ns,
+};
 
 /// Status bits of a record taken while a gauge is saturated (bit 31 "error" plus the mock's
 /// saturation bit 16).
@@ -33,11 +39,11 @@ pub const STATUS_SATURATED: u32 = STATUS_ERROR | (1 << 16);
 pub struct NetFtMockConfig {
     /// Address to bind (port 0: ephemeral).
     pub bind: SocketAddr,
-    /// Records per second (the real box: up to 7000).
+    /// Records per second (the real box: up to [`MAX_RDT_RATE_HZ`], the default).
     pub rate_hz: f64,
-    /// Counts per newton (factory default 1e6).
+    /// Counts per newton (default: the factory's, [`FACTORY_COUNTS_PER_FORCE`]).
     pub counts_per_force: f64,
-    /// Counts per N·mm (factory default 1e6 per N·m = 1000 per N·mm).
+    /// Counts per N·mm (default: the factory's, [`FACTORY_COUNTS_PER_TORQUE`]).
     pub counts_per_torque: f64,
     pub seed: u64,
 }
@@ -46,18 +52,19 @@ impl Default for NetFtMockConfig {
     fn default() -> Self {
         Self {
             bind: SocketAddr::from(([127, 0, 0, 1], 0)),
-            rate_hz: 7000.0,
-            counts_per_force: 1e6,
-            counts_per_torque: 1e3,
+            rate_hz: MAX_RDT_RATE_HZ,
+            counts_per_force: FACTORY_COUNTS_PER_FORCE,
+            counts_per_torque: FACTORY_COUNTS_PER_TORQUE,
             seed: 49152,
         }
     }
 }
 
 /// A running simulated Net F/T.
-pub struct NetFtMock {
-    addr: SocketAddr,
-    running: Running,
+pub type NetFtMock = MockHandle<NetFtMockConfig>;
+
+impl MockConfig for NetFtMockConfig {
+    type Endpoint = SocketAddr;
 }
 
 impl NetFtMock {
@@ -70,24 +77,9 @@ impl NetFtMock {
     ) -> io::Result<Self> {
         let sock = UdpSocket::bind(cfg.bind).await?;
         let addr = sock.local_addr()?;
-        let running = Running::spawn(|faults, stats, stop| {
+        Ok(Self::spawn(addr, |faults, stats, stop| {
             run(sock, cfg, model, source, clock, faults, stats, stop)
-        });
-        Ok(Self { addr, running })
-    }
-
-    pub fn addr(&self) -> SocketAddr {
-        self.addr
-    }
-    pub fn faults(&self) -> &Arc<Faults> {
-        self.running.faults()
-    }
-    pub fn stats(&self) -> &Arc<MockStats> {
-        self.running.stats()
-    }
-
-    pub async fn shutdown(self) {
-        self.running.shutdown().await;
+        }))
     }
 }
 
@@ -171,11 +163,8 @@ async fn run(
                     let truth = source.wrench_at(t).to_array();
                     let m = model.measure(&truth, faults.saturated());
                     let w = model.resolve(&m);
-                    let mut counts = [0i32; 6];
-                    for i in 0..6 {
-                        let k = if i < 3 { cfg.counts_per_force } else { cfg.counts_per_torque };
-                        counts[i] = ((w[i] - bias[i]) * k).round().clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32;
-                    }
+                    let biased: [f64; 6] = std::array::from_fn(|i| w[i] - bias[i]);
+                    let counts = wrench_to_counts(&biased, cfg.counts_per_force, cfg.counts_per_torque);
                     let status = if m.saturated_gauges != 0 { STATUS_SATURATED } else { 0 };
                     let rec = RdtRecord { rdt_sequence, ft_sequence, status, counts };
                     let garbage = faults.take_garbage();

@@ -11,16 +11,21 @@
 //! Counts are `round(F · CPF)`, `round(T · CPT)` of the resolved, biased wrench.
 
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
 use rig_core::clock::Clock;
-use rig_core::ft::serial::{Command, CountsRecord, OutputMode};
+use rig_core::ft::serial::{
+    Command, CountsRecord, DEFAULT_COUNTS_PER_FORCE, DEFAULT_COUNTS_PER_TORQUE, OutputMode,
+};
+use rig_core::ft::{DEFAULT_RATE_HZ, wrench_to_counts};
 use tokio::sync::oneshot;
 
 use super::pty::PtyMaster;
-use super::{Faults, MockStats, Running, SensorModel, SharedWrenchSource, sample_time_ns};
+use super::{
+    Faults, MockConfig, MockHandle, MockStats, SensorModel, SharedWrenchSource, sample_time_ns,
+};
 
 /// Status word of a record taken while a gauge is saturated (the mock's choice of bit).
 pub const STATUS_SATURATED: u32 = 0x0001;
@@ -43,9 +48,9 @@ pub struct SerialMockConfig {
 impl Default for SerialMockConfig {
     fn default() -> Self {
         Self {
-            rate_hz: 1000.0,
-            counts_per_force: 320.0,
-            counts_per_torque: 64.0,
+            rate_hz: DEFAULT_RATE_HZ,
+            counts_per_force: DEFAULT_COUNTS_PER_FORCE,
+            counts_per_torque: DEFAULT_COUNTS_PER_TORQUE,
             mode: OutputMode::Ascii,
             seed: 17,
         }
@@ -53,9 +58,10 @@ impl Default for SerialMockConfig {
 }
 
 /// A running simulated controller.
-pub struct SerialControllerMock {
-    path: PathBuf,
-    running: Running,
+pub type SerialControllerMock = MockHandle<SerialMockConfig>;
+
+impl MockConfig for SerialMockConfig {
+    type Endpoint = PathBuf;
 }
 
 impl SerialControllerMock {
@@ -66,28 +72,9 @@ impl SerialControllerMock {
         source: SharedWrenchSource,
         clock: Clock,
     ) -> io::Result<Self> {
-        let pty = PtyMaster::open()?;
-        let path = pty.path().to_owned();
-        let running = Running::spawn(|faults, stats, stop| {
+        Self::spawn_on_pty(|pty, faults, stats, stop| {
             run(pty, cfg, model, source, clock, faults, stats, stop)
-        });
-        Ok(Self { path, running })
-    }
-
-    /// The pty path the rig opens.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-    pub fn faults(&self) -> &Arc<Faults> {
-        self.running.faults()
-    }
-    pub fn stats(&self) -> &Arc<MockStats> {
-        self.running.stats()
-    }
-
-    /// Stops the controller and closes the pty.
-    pub async fn shutdown(self) {
-        self.running.shutdown().await;
+        })
     }
 }
 
@@ -106,17 +93,12 @@ impl Controller {
         let truth = self.source.wrench_at(t_ns).to_array();
         let m = self.model.measure(&truth, self.faults.saturated());
         let w = self.model.resolve(&m);
-        let mut counts = [0i32; 6];
-        for i in 0..6 {
-            let k = if i < 3 {
-                self.cfg.counts_per_force
-            } else {
-                self.cfg.counts_per_torque
-            };
-            counts[i] = ((w[i] - self.bias[i]) * k)
-                .round()
-                .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32;
-        }
+        let biased: [f64; 6] = std::array::from_fn(|i| w[i] - self.bias[i]);
+        let counts = wrench_to_counts(
+            &biased,
+            self.cfg.counts_per_force,
+            self.cfg.counts_per_torque,
+        );
         let status = if m.saturated_gauges != 0 {
             STATUS_SATURATED
         } else {

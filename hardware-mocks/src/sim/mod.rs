@@ -20,6 +20,8 @@
 //!   when asked, the surface fields. Its module docs give the models, their limits and the
 //!   convergence table.
 //! - [`optics`]: GelSight shading, markers, and image effects, from the surface fields.
+//! - [`scene`]: the scene, the effects and models it asks for, and what a frame reports
+//!   ([`SimStats`], [`SimError`]); both stages read it, it imports neither.
 //!
 //! Use [`simulate`] for one stateless frame, or a [`Simulator`] for a sequence of frames: it
 //! keeps the FFT plans and influence kernels of the last grid, and the history that friction
@@ -27,95 +29,15 @@
 
 pub mod contact;
 pub mod optics;
+pub mod scene;
 
-use std::sync::Arc;
-
-use rig_core::config::ElastomerConfig;
-use rig_core::indenter::Indenter;
-use rig_core::optics::OpticsConfig;
 use rig_core::wrench::Wrench;
 
-pub use contact::{ContactModel, FrictionModel, SurfaceField, Viscoelastic};
-
-/// Where the indenter is, in the sensor surface frame (x, y along the undeformed gel surface,
-/// origin at its centre; z its outward normal).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct IndenterPose {
-    /// The indenter axis's contact point on the undeformed surface, mm.
-    pub contact_mm: [f64; 2],
-    /// Indentation depth of the indenter tip below the undeformed surface, mm. At most the gel
-    /// thickness; ≤ 0 means not touching (zero force).
-    pub depth_mm: f64,
-    /// Tangential displacement of the indenter from the contact point, mm. The indenter's axis
-    /// is at `contact_mm + shear_mm`.
-    pub shear_mm: [f64; 2],
-}
-
-/// A scene: everything the simulator needs for one contact state, and the effects to compute.
-#[derive(Debug, Clone)]
-pub struct Scene {
-    pub elastomer: ElastomerConfig,
-    pub indenter: Arc<Indenter>,
-    pub pose: IndenterPose,
-    /// Sensor optics; needed only when `effects.image` is set.
-    pub optics: Option<OpticsConfig>,
-    pub effects: Effects,
-}
-
-impl Scene {
-    /// A force-only scene with the default effects (finite-layer BEM, no friction, no image).
-    pub fn new(elastomer: ElastomerConfig, indenter: Arc<Indenter>, pose: IndenterPose) -> Self {
-        Self {
-            elastomer,
-            indenter,
-            pose,
-            optics: None,
-            effects: Effects::default(),
-        }
-    }
-}
-
-/// The effects a scene asks for. Default: finite-thickness layer BEM at the default grid,
-/// no friction, no viscoelasticity, no surface field, no image (force only).
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct Effects {
-    /// Normal contact model.
-    pub contact: contact::ContactModel,
-    /// Grid cell size of the gridded models (Winkler, BEM) and of the surface field, mm.
-    /// `None`: [`contact::DEFAULT_CELL_MM`].
-    pub cell_mm: Option<f64>,
-    /// Tangential behaviour.
-    pub friction: contact::FrictionModel,
-    /// Standard-linear-solid relaxation of the contact forces (needs a [`Simulator`] and times).
-    pub viscoelastic: Option<contact::Viscoelastic>,
-    /// Return the surface field even when no image is rendered.
-    pub surface_field: bool,
-    /// Render an image, with these image effects. `None`: force only, no rendering work.
-    pub image: Option<optics::ImageEffects>,
-}
-
-/// Counters of the work one frame did: which stages ran, and how much they cost.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct SimStats {
-    /// Normal contact solves (1 per frame with contact; 0 at zero depth).
-    pub normal_solves: u32,
-    /// Constrained-CG iterations of the normal BEM solve.
-    pub normal_iterations: u32,
-    /// Tangential (friction) solves.
-    pub tangential_solves: u32,
-    /// Iterations of the tangential solver.
-    pub tangential_iterations: u32,
-    /// 2-D FFTs (forward or inverse) executed.
-    pub ffts: u32,
-    /// Influence kernels built (0 when the cached ones were reused).
-    pub kernels_built: u32,
-    /// Surface fields assembled.
-    pub fields_built: u32,
-    /// Images rendered.
-    pub images_rendered: u32,
-    /// Whether the iterative solvers met their tolerance (true when none ran).
-    pub converged: bool,
-}
+pub use contact::SurfaceField;
+pub use scene::{
+    ContactModel, Effects, FrictionModel, ImageEffects, IndenterPose, Scene, SimError, SimStats,
+    Viscoelastic,
+};
 
 /// What the simulator computed for a scene.
 #[derive(Debug, Clone)]
@@ -132,29 +54,6 @@ pub struct SimOutput {
     pub image: Option<image::RgbImage>,
     /// The work this frame did.
     pub stats: SimStats,
-}
-
-/// Why a scene cannot be simulated. Every message says what to change.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum SimError {
-    #[error(
-        "depth {depth_mm} mm exceeds the gel thickness {thickness_mm} mm: the indenter would hit the rigid backing; press less deep"
-    )]
-    DepthBeyondThickness { depth_mm: f64, thickness_mm: f64 },
-    #[error(
-        "the Hertz model needs a single spherical cap, but indenter `{indenter}` is {reason}; use the `half-space`, `layer` or `winkler` model"
-    )]
-    NotASphere { indenter: String, reason: String },
-    #[error("{name} = {value}: {reason}")]
-    InvalidParameter {
-        name: &'static str,
-        value: f64,
-        reason: String,
-    },
-    #[error("the scene asks for an image but has no optics: set `scene.optics`")]
-    MissingOptics,
-    #[error("contact grid: {0}")]
-    Grid(String),
 }
 
 /// Simulates one frame without history (friction, if any, as a monotonic shear from the

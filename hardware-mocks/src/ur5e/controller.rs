@@ -8,14 +8,15 @@
 use std::collections::HashMap;
 
 use rig_core::control::{
-    self, CommandKind, ProgramStatus, motion_allowed, robot_mode, runtime_state, safety_mode,
+    self, CommandKind, ProgramStatus, motion_allowed, robot_mode, robot_mode_name, runtime_state,
+    safety_mode, safety_mode_name,
 };
 use rig_core::pose::Pose;
 use rig_core::rtde::Value;
 
-use super::ControllerSnapshot;
 use super::motion::LinearMove;
-use super::script::{Script, WatchdogAction};
+use super::program::{Script, WatchdogAction};
+use super::snapshot::ControllerSnapshot;
 use super::variables::InputSink;
 
 /// Deceleration of stops the controller imposes itself (protective stop, emergency stop,
@@ -443,51 +444,5 @@ impl Controller {
             }
             self.input_written_ns.insert(name.clone(), t_ns);
         }
-    }
-}
-
-pub fn robot_mode_name(m: i32) -> &'static str {
-    use robot_mode::*;
-    match m {
-        NO_CONTROLLER => "NO_CONTROLLER",
-        DISCONNECTED => "DISCONNECTED",
-        CONFIRM_SAFETY => "CONFIRM_SAFETY",
-        BOOTING => "BOOTING",
-        POWER_OFF => "POWER_OFF",
-        POWER_ON => "POWER_ON",
-        IDLE => "IDLE",
-        BACKDRIVE => "BACKDRIVE",
-        RUNNING => "RUNNING",
-        UPDATING_FIRMWARE => "UPDATING_FIRMWARE",
-        _ => "UNKNOWN",
-    }
-}
-
-pub fn safety_mode_name(m: i32) -> &'static str {
-    use safety_mode::*;
-    match m {
-        NORMAL => "NORMAL",
-        REDUCED => "REDUCED",
-        PROTECTIVE_STOP => "PROTECTIVE_STOP",
-        RECOVERY => "RECOVERY",
-        SAFEGUARD_STOP => "SAFEGUARD_STOP",
-        SYSTEM_EMERGENCY_STOP => "SYSTEM_EMERGENCY_STOP",
-        ROBOT_EMERGENCY_STOP => "ROBOT_EMERGENCY_STOP",
-        VIOLATION => "VIOLATION",
-        FAULT => "FAULT",
-        _ => "UNKNOWN",
-    }
-}
-
-pub fn runtime_state_name(s: u32) -> &'static str {
-    use runtime_state::*;
-    match s {
-        STOPPING => "STOPPING",
-        STOPPED => "STOPPED",
-        PLAYING => "PLAYING",
-        PAUSING => "PAUSING",
-        PAUSED => "PAUSED",
-        RESUMING => "RESUMING",
-        _ => "UNKNOWN",
     }
 }

@@ -7,42 +7,25 @@
 
 use std::sync::Arc;
 
-use rig_core::control::runtime_state;
+use rig_core::control::{robot_mode_name, runtime_state, runtime_state_name, safety_mode_name};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
 
-use super::Shared;
-use super::controller::{robot_mode_name, runtime_state_name, safety_mode_name};
+use super::shared::{Shared, accept_loop, spawn_until_shutdown};
 
 /// First line sent to every dashboard client.
 pub const GREETING: &str = "Connected: Universal Robots Dashboard Server";
 
 pub(super) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
-    loop {
-        match listener.accept().await {
-            Ok((sock, peer)) => {
-                let shared = shared.clone();
-                tokio::spawn(async move {
-                    let mut shutdown = shared.shutdown.subscribe();
-                    tokio::select! {
-                        r = handle(sock, &shared) => {
-                            if let Err(e) = r {
-                                tracing::debug!(%peer, "dashboard client error: {e}");
-                            }
-                        }
-                        _ = shutdown.wait_for(|s| *s) => {}
-                    }
-                });
+    accept_loop(listener, shared, "dashboard", |sock, peer, shared| {
+        let owned = shared.clone();
+        spawn_until_shutdown(shared, "dashboard", peer, async move {
+            if let Err(e) = handle(sock, &owned).await {
+                tracing::debug!(%peer, "dashboard client error: {e}");
             }
-            Err(e) => {
-                tracing::warn!("dashboard accept failed: {e}");
-                shared
-                    .clock
-                    .sleep(std::time::Duration::from_millis(10))
-                    .await;
-            }
-        }
-    }
+        });
+    })
+    .await;
 }
 
 async fn handle(sock: TcpStream, shared: &Shared) -> std::io::Result<()> {

@@ -13,7 +13,12 @@
 //!   controller's registers;
 //! - the **dashboard server** ([`dashboard`]): power on, brake release, unlock protective stop,
 //!   play, stop, mode queries;
-//! - the **secondary interface** ([`script`]), which accepts the rig's URScript control program.
+//! - the **secondary interface** ([`script`]), which accepts the rig's URScript control program
+//!   ([`program`] reads it).
+//!
+//! [`Ur5eConfig`] ([`config`]) sets it up; [`ControllerSnapshot`] ([`snapshot`]) is one tick's
+//! state. What the tasks share, and the accept loop of the three servers, are in `shared.rs`;
+//! nothing there or in the servers imports this file, which only starts and drives them.
 //!
 //! All timing comes from the [`Clock`], so with [`Clock::scaled`] the simulated arm runs faster
 //! than real time and with [`Clock::manual`] a test steps it tick by tick
@@ -69,165 +74,32 @@
 //! simulator supplies forces elsewhere), the binary robot-state stream real controllers send on
 //! the secondary interface, and any URScript other than the rig's program.
 
+pub mod config;
 pub mod controller;
 pub mod dashboard;
 pub mod motion;
+pub mod program;
 pub mod rtde_server;
 pub mod script;
+mod shared;
+pub mod snapshot;
 pub mod variables;
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use rig_core::clock::{Clock, ClockHandle};
-use rig_core::control;
-use rig_core::pose::Pose;
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 
 use controller::Controller;
+use shared::{FaultState, Shared};
 
-/// How the simulated controller is set up.
-#[derive(Debug, Clone)]
-pub struct Ur5eConfig {
-    /// RTDE listener (30004 on a real controller); port 0 picks a free one.
-    pub rtde_addr: SocketAddr,
-    /// Dashboard listener (29999 on a real controller).
-    pub dashboard_addr: SocketAddr,
-    /// Secondary interface listener for scripts (30002 on a real controller).
-    pub script_addr: SocketAddr,
-    /// TCP pose at start.
-    pub home_pose: Pose,
-    /// Reported by the `v` request: (major, minor, bugfix, build). Major ≥ 5 is an e-Series.
-    pub controller_version: (u32, u32, u32, u32),
-    /// robot_mode at start ([`control::robot_mode`]).
-    pub initial_robot_mode: i32,
-    /// Controller cycle rate and the highest output frequency accepted: 500 Hz e-Series,
-    /// 125 Hz CB3.
-    pub max_frequency_hz: f64,
-    /// Clock time after a protective stop before `unlock protective stop` is accepted.
-    pub protective_stop_unlock_delay: Duration,
-}
-
-impl Default for Ur5eConfig {
-    fn default() -> Self {
-        let local: SocketAddr = ([127, 0, 0, 1], 0).into();
-        Self {
-            rtde_addr: local,
-            dashboard_addr: local,
-            script_addr: local,
-            // A tool pointing down above the table, as the rig's plans start.
-            home_pose: Pose::new(0.3, -0.2, 0.3, 0.0, std::f64::consts::PI, 0.0),
-            controller_version: (5, 15, 0, 0),
-            initial_robot_mode: control::robot_mode::POWER_OFF,
-            max_frequency_hz: 500.0,
-            protective_stop_unlock_delay: Duration::from_secs(5),
-        }
-    }
-}
-
-/// The controller's state at one tick, as the RTDE stream reports it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ControllerSnapshot {
-    /// Clock time of the tick, ns.
-    pub t_ns: u64,
-    /// RTDE `timestamp`: seconds since the controller started, on the clock.
-    pub timestamp_s: f64,
-    pub actual_tcp_pose: Pose,
-    pub target_tcp_pose: Pose,
-    /// `[vx, vy, vz, wx, wy, wz]`, m/s and rad/s in the base frame.
-    pub actual_tcp_speed: [f64; 6],
-    pub robot_mode: i32,
-    pub safety_mode: i32,
-    pub runtime_state: u32,
-    /// Whether a script the mock can run has been uploaded.
-    pub program_loaded: bool,
-    pub input_int_registers: [i32; 48],
-    pub input_double_registers: [f64; 48],
-    /// Bit n is input bit register n (0..128).
-    pub input_bit_registers: u128,
-    pub output_int_registers: [i32; 48],
-    pub output_double_registers: [f64; 48],
-    pub output_bit_registers: u128,
-    /// Data packages sent on all RTDE connections since start.
-    pub data_packages_sent: u64,
-}
-
-impl Default for ControllerSnapshot {
-    fn default() -> Self {
-        Self {
-            t_ns: 0,
-            timestamp_s: 0.0,
-            actual_tcp_pose: Pose::default(),
-            target_tcp_pose: Pose::default(),
-            actual_tcp_speed: [0.0; 6],
-            robot_mode: control::robot_mode::POWER_OFF,
-            safety_mode: control::safety_mode::NORMAL,
-            runtime_state: control::runtime_state::STOPPED,
-            program_loaded: false,
-            input_int_registers: [0; 48],
-            input_double_registers: [0.0; 48],
-            input_bit_registers: 0,
-            output_int_registers: [0; 48],
-            output_double_registers: [0.0; 48],
-            output_bit_registers: 0,
-            data_packages_sent: 0,
-        }
-    }
-}
-
-#[derive(Debug, Default)]
-struct FaultState {
-    refuse_until_ns: u64,
-    delay_start_ack: Option<Duration>,
-    text_in_handshake: bool,
-}
-
-/// State shared by the controller task, the servers and the handles.
-struct Shared {
-    clock: Clock,
-    cfg: Ur5eConfig,
-    state: Mutex<Controller>,
-    samples: broadcast::Sender<Arc<ControllerSnapshot>>,
-    /// Clock time of the last tick the controller has processed.
-    ticks_done: watch::Sender<u64>,
-    shutdown: watch::Sender<bool>,
-    /// Bumped by [`Faults::drop_connections`]; every RTDE connection closes on a change.
-    drop_gen: watch::Sender<u64>,
-    faults: Mutex<FaultState>,
-    packages_sent: AtomicU64,
-    next_conn: AtomicU64,
-    t0_ns: u64,
-    tick_period_ns: u64,
-    /// Clock time of the next tick to process; held while ticks are processed, so the
-    /// controller task and [`Ur5e::snapshot_now`] never process one tick twice or out of order.
-    next_tick_ns: Mutex<u64>,
-}
-
-impl Shared {
-    /// Process every tick due at clock time `now`, in order, broadcasting each snapshot.
-    fn process_due_ticks(&self, now: u64) {
-        let mut next = self.next_tick_ns.lock().unwrap_or_else(|p| p.into_inner());
-        while *next <= now {
-            let t_ns = *next;
-            *next += self.tick_period_ns;
-            let snap = Arc::new(self.lock().tick(t_ns));
-            // No receivers is fine: nobody streams yet.
-            let _ = self.samples.send(snap);
-            self.ticks_done.send_replace(t_ns);
-        }
-    }
-
-    fn lock(&self) -> MutexGuard<'_, Controller> {
-        self.state.lock().unwrap_or_else(|p| p.into_inner())
-    }
-    fn faults(&self) -> MutexGuard<'_, FaultState> {
-        self.faults.lock().unwrap_or_else(|p| p.into_inner())
-    }
-}
+pub use config::Ur5eConfig;
+pub use snapshot::ControllerSnapshot;
 
 /// A running simulated controller. Dropping it (or [`Ur5e::shutdown`]) stops every task.
 pub struct Ur5e {

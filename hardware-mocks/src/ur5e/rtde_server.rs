@@ -36,8 +36,9 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::broadcast;
 
+use super::shared::{Shared, accept_loop};
+use super::snapshot::ControllerSnapshot;
 use super::variables::{InputSink, OutputSource, resolve_input, resolve_output};
-use super::{ControllerSnapshot, Shared};
 
 /// Source name the mock puts on its text messages.
 const MESSAGE_SOURCE: &str = "RTDE";
@@ -72,29 +73,18 @@ struct Connection {
 }
 
 pub(super) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
-    loop {
-        match listener.accept().await {
-            Ok((sock, peer)) => {
-                let now = shared.clock.now_ns();
-                if now < shared.faults().refuse_until_ns {
-                    tracing::info!(%peer, "RTDE restarting (injected fault): closing new connection");
-                    drop(sock);
-                    continue;
-                }
-                let _ = sock.set_nodelay(true);
-                let id = shared.next_conn.fetch_add(1, Ordering::Relaxed);
-                let shared = shared.clone();
-                tokio::spawn(async move { run_connection(sock, peer, id, shared).await });
-            }
-            Err(e) => {
-                tracing::warn!("RTDE accept failed: {e}");
-                shared
-                    .clock
-                    .sleep(std::time::Duration::from_millis(10))
-                    .await;
-            }
+    accept_loop(listener, shared, "RTDE", |sock, peer, shared| {
+        let now = shared.clock.now_ns();
+        if now < shared.faults().refuse_until_ns {
+            tracing::info!(%peer, "RTDE restarting (injected fault): closing new connection");
+            drop(sock);
+            return;
         }
-    }
+        let _ = sock.set_nodelay(true);
+        let id = shared.next_conn.fetch_add(1, Ordering::Relaxed);
+        tokio::spawn(run_connection(sock, peer, id, shared.clone()));
+    })
+    .await;
 }
 
 async fn sleep_until_opt(shared: &Shared, t_ns: Option<u64>) {

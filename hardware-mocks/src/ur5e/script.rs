@@ -1,157 +1,29 @@
 //! The secondary interface (TCP 30002 on a real controller): URScript text in, a program out.
 //!
 //! A real controller compiles and runs whatever script arrives. The mock runs only the rig's
-//! own control program, recognised by [`control::PROGRAM_MARKER`], whose semantics it emulates
-//! in [`super::controller`]; any other script is refused with a warning in the log. From the
-//! script it takes the `def` name and every `rtde_set_watchdog(variable, min_frequency,
-//! action)` call (URScript manual; `action` defaults to "pause").
+//! own control program, read by [`super::program`], whose semantics it emulates in
+//! [`super::controller`]; any other script is refused with a warning in the log.
 //!
 //! Real controllers also stream binary robot-state packages (robot mode data, joint data,
 //! version message, …) to every client of 30002; the mock sends nothing back on this port.
 
 use std::sync::Arc;
 
-use rig_core::control;
 use tokio::io::AsyncReadExt;
 use tokio::net::{TcpListener, TcpStream};
 
-use super::Shared;
-
-/// What the watchdog does when its variable is not updated in time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum WatchdogAction {
-    Ignore,
-    Pause,
-    Stop,
-}
-
-/// One `rtde_set_watchdog` call.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Watchdog {
-    pub variable: String,
-    pub min_hz: f64,
-    pub action: WatchdogAction,
-}
-
-/// A script the mock can run.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Script {
-    pub name: String,
-    pub watchdogs: Vec<Watchdog>,
-}
-
-/// Why a script is not run.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ScriptError {
-    #[error(
-        "script is not the rig's control program (no {:?} line): the mock only runs the rig's program",
-        control::PROGRAM_MARKER
-    )]
-    NotRigProgram,
-    #[error("bad rtde_set_watchdog call: {0}")]
-    BadWatchdog(String),
-}
-
-/// Whether `text` holds a complete top-level `def … end` block.
-pub fn is_complete(text: &str) -> bool {
-    let mut seen_def = false;
-    for line in text.lines() {
-        if line.starts_with("def ") {
-            seen_def = true;
-        } else if seen_def && line.trim_end() == "end" {
-            return true;
-        }
-    }
-    false
-}
-
-fn unquote(s: &str) -> Option<&str> {
-    let s = s.trim();
-    s.strip_prefix('"')
-        .and_then(|r| r.strip_suffix('"'))
-        .or_else(|| s.strip_prefix('\'').and_then(|r| r.strip_suffix('\'')))
-}
-
-fn parse_watchdog(args: &str) -> Result<Watchdog, ScriptError> {
-    let bad = || ScriptError::BadWatchdog(args.to_owned());
-    let parts: Vec<&str> = args.split(',').map(str::trim).collect();
-    if !(2..=3).contains(&parts.len()) {
-        return Err(bad());
-    }
-    let variable = unquote(parts[0]).ok_or_else(bad)?.to_owned();
-    let min_hz: f64 = parts[1].parse().map_err(|_| bad())?;
-    let action = match parts.get(2) {
-        None => WatchdogAction::Pause,
-        Some(a) => {
-            let a = a
-                .strip_prefix("action")
-                .map(|r| r.trim_start().trim_start_matches('='))
-                .unwrap_or(a);
-            match unquote(a).ok_or_else(bad)? {
-                "ignore" => WatchdogAction::Ignore,
-                "pause" => WatchdogAction::Pause,
-                "stop" => WatchdogAction::Stop,
-                _ => return Err(bad()),
-            }
-        }
-    };
-    Ok(Watchdog {
-        variable,
-        min_hz,
-        action,
-    })
-}
-
-/// Parse an uploaded script.
-pub fn parse(text: &str) -> Result<Script, ScriptError> {
-    if !text.lines().any(|l| l.trim() == control::PROGRAM_MARKER) {
-        return Err(ScriptError::NotRigProgram);
-    }
-    let name = text
-        .lines()
-        .find_map(|l| l.strip_prefix("def "))
-        .and_then(|r| r.split('(').next())
-        .map(|n| n.trim().to_owned())
-        .filter(|n| !n.is_empty())
-        .unwrap_or_else(|| control::PROGRAM_NAME.to_owned());
-    let mut watchdogs = Vec::new();
-    for line in text.lines() {
-        let l = line.trim();
-        if l.starts_with('#') {
-            continue;
-        }
-        if let Some(rest) = l.strip_prefix("rtde_set_watchdog(") {
-            let args = rest.rsplit_once(')').map(|(a, _)| a).unwrap_or(rest);
-            watchdogs.push(parse_watchdog(args)?);
-        }
-    }
-    Ok(Script { name, watchdogs })
-}
+pub use super::program::{Script, ScriptError, Watchdog, WatchdogAction, is_complete, parse};
+use super::shared::{Shared, accept_loop, spawn_until_shutdown};
 
 /// Accept scripts on the secondary-interface listener until the task is dropped.
 pub(super) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
-    loop {
-        match listener.accept().await {
-            Ok((sock, peer)) => {
-                let shared = shared.clone();
-                tokio::spawn(async move {
-                    let mut shutdown = shared.shutdown.subscribe();
-                    tokio::select! {
-                        _ = handle(sock, &shared) => {}
-                        _ = shutdown.wait_for(|s| *s) => {}
-                    }
-                    tracing::debug!(%peer, "script client gone");
-                });
-            }
-            Err(e) => {
-                tracing::warn!("script port accept failed: {e}");
-                shared
-                    .clock
-                    .sleep(std::time::Duration::from_millis(10))
-                    .await;
-            }
-        }
-    }
+    accept_loop(listener, shared, "script port", |sock, peer, shared| {
+        let owned = shared.clone();
+        spawn_until_shutdown(shared, "script", peer, async move {
+            handle(sock, &owned).await;
+        });
+    })
+    .await;
 }
 
 async fn handle(mut sock: TcpStream, shared: &Shared) {
@@ -186,39 +58,5 @@ fn run(text: &str, shared: &Shared) {
             shared.lock().upload(script, now);
         }
         Err(e) => tracing::warn!("script refused: {e}"),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn parses_the_rigs_program_header_and_watchdog() {
-        let text = format!(
-            "def {}():\n  {}\n  rtde_set_watchdog(\"input_int_register_26\", 10.0, \"stop\")\n  while True:\n    sync()\n  end\nend\n",
-            control::PROGRAM_NAME,
-            control::PROGRAM_MARKER
-        );
-        assert!(is_complete(&text));
-        assert!(!is_complete(&text[..text.len() - 4]));
-        let s = parse(&text).unwrap();
-        assert_eq!(s.name, control::PROGRAM_NAME);
-        assert_eq!(
-            s.watchdogs,
-            vec![Watchdog {
-                variable: "input_int_register_26".into(),
-                min_hz: 10.0,
-                action: WatchdogAction::Stop
-            }]
-        );
-        assert_eq!(
-            parse("def f():\n  movel(p)\nend\n"),
-            Err(ScriptError::NotRigProgram)
-        );
-        assert_eq!(
-            parse_watchdog("\"x\", 5").unwrap().action,
-            WatchdogAction::Pause
-        );
     }
 }

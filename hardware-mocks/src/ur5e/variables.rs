@@ -9,7 +9,7 @@
 use rig_core::control::{robot_mode, runtime_state, safety_mode};
 use rig_core::rtde::{Value, fields};
 
-use super::ControllerSnapshot;
+use super::snapshot::ControllerSnapshot;
 
 /// The source of one output-recipe field.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -58,24 +58,21 @@ fn register_index(name: &str, prefix: &str) -> Option<u32> {
 pub fn resolve_output(name: &str) -> Option<OutputSource> {
     use OutputSource::*;
     let ty = fields::output_type(name)?;
-    let reg = |prefix| register_index(name, prefix);
-    if let Some(n) = reg("input_int_register_") {
-        return Some(InputInt(n as usize));
-    }
-    if let Some(n) = reg("input_double_register_") {
-        return Some(InputDouble(n as usize));
-    }
-    if let Some(n) = reg("input_bit_register_") {
-        return Some(InputBit(n));
-    }
-    if let Some(n) = reg("output_int_register_") {
-        return Some(OutputInt(n as usize));
-    }
-    if let Some(n) = reg("output_double_register_") {
-        return Some(OutputDouble(n as usize));
-    }
-    if let Some(n) = reg("output_bit_register_") {
-        return Some(OutputBit(n));
+    // Numbered registers, by name prefix.
+    type Numbered = fn(u32) -> OutputSource;
+    let registers: [(&str, Numbered); 6] = [
+        ("input_int_register_", |n| InputInt(n as usize)),
+        ("input_double_register_", |n| InputDouble(n as usize)),
+        ("input_bit_register_", InputBit),
+        ("output_int_register_", |n| OutputInt(n as usize)),
+        ("output_double_register_", |n| OutputDouble(n as usize)),
+        ("output_bit_register_", OutputBit),
+    ];
+    if let Some(source) = registers
+        .iter()
+        .find_map(|(prefix, source)| register_index(name, prefix).map(source))
+    {
+        return Some(source);
     }
     Some(match name {
         "timestamp" => Timestamp,

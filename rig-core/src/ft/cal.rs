@@ -240,6 +240,18 @@ fn finite_number(node: roxmltree::Node, name: &str, text: &str) -> Result<f64, C
     Ok(v)
 }
 
+/// A row's `max` attribute (its axis's rated load), which must be positive.
+fn row_max(node: roxmltree::Node) -> Result<f64, CalError> {
+    let max = attr_f64(node, "max")?;
+    if max <= 0.0 {
+        return Err(elem_err(
+            describe(node),
+            format!("attribute `max` = {max} must be positive"),
+        ));
+    }
+    Ok(max)
+}
+
 fn attr_f64(node: roxmltree::Node, name: &str) -> Result<f64, CalError> {
     finite_number(node, name, attr(node, name)?)
 }
@@ -352,34 +364,44 @@ impl Calibration {
 
         let fu = attr(cal, "ForceUnits")?;
         let tu = attr(cal, "TorqueUnits")?;
-        let f_k = force_unit_to_n(fu).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!("attribute `ForceUnits` = {fu:?} is not a known unit (N, lbf, kgf, kN)"),
-            )
-        })?;
-        let t_k = torque_unit_to_nmm(tu).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!(
-                    "attribute `TorqueUnits` = {tu:?} is not a known unit (N-mm, N-m, lbf-in, lbf-ft, kgf-cm)"
-                ),
-            )
-        })?;
-        let du = cal.attribute("DistUnits").unwrap_or("mm");
-        let d_k = dist_unit_to_mm(du).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!("attribute `DistUnits` = {du:?} is not a known unit (mm, cm, m, in, ft)"),
-            )
-        })?;
-        let au = cal.attribute("AngleUnits").unwrap_or("degrees");
-        let a_k = angle_unit_to_rad(au).ok_or_else(|| {
-            elem_err(
-                "<Calibration>",
-                format!("attribute `AngleUnits` = {au:?} is not degrees or radians"),
-            )
-        })?;
+        // Each unit attribute's factor to N, N·mm, mm or rad, or an error listing what is known.
+        type ToSi = fn(&str) -> Option<f64>;
+        let units: [(&str, &str, ToSi, &str); 4] = [
+            (
+                "ForceUnits",
+                fu,
+                force_unit_to_n,
+                "a known unit (N, lbf, kgf, kN)",
+            ),
+            (
+                "TorqueUnits",
+                tu,
+                torque_unit_to_nmm,
+                "a known unit (N-mm, N-m, lbf-in, lbf-ft, kgf-cm)",
+            ),
+            (
+                "DistUnits",
+                cal.attribute("DistUnits").unwrap_or("mm"),
+                dist_unit_to_mm,
+                "a known unit (mm, cm, m, in, ft)",
+            ),
+            (
+                "AngleUnits",
+                cal.attribute("AngleUnits").unwrap_or("degrees"),
+                angle_unit_to_rad,
+                "degrees or radians",
+            ),
+        ];
+        let mut factors = [0.0; 4];
+        for (k, (name, value, to_si, known)) in factors.iter_mut().zip(units) {
+            *k = to_si(value).ok_or_else(|| {
+                elem_err(
+                    "<Calibration>",
+                    format!("attribute `{name}` = {value:?} is not {known}"),
+                )
+            })?;
+        }
+        let [f_k, t_k, d_k, a_k] = factors;
         let unit = |i: usize| if i < 3 { f_k } else { t_k };
 
         // Axis rows (required): values / scale, converted.
@@ -396,14 +418,7 @@ impl Calibration {
             for j in 0..6 {
                 basic[(i, j)] = values[j] / scale * unit(i);
             }
-            let max = attr_f64(*node, "max")?;
-            if max <= 0.0 {
-                return Err(elem_err(
-                    describe(*node),
-                    format!("attribute `max` = {max} must be positive"),
-                ));
-            }
-            max_loads[i] = max * unit(i);
+            max_loads[i] = row_max(*node)? * unit(i);
         }
 
         let mut bt = [0.0; 6];
@@ -429,14 +444,7 @@ impl Calibration {
                         m[(i, j)] = values[j] * unit(i);
                     }
                     if node.attribute("max").is_some() {
-                        let max = attr_f64(*node, "max")?;
-                        if max <= 0.0 {
-                            return Err(elem_err(
-                                describe(*node),
-                                format!("attribute `max` = {max} must be positive"),
-                            ));
-                        }
-                        max_loads[i] = max * unit(i);
+                        max_loads[i] = row_max(*node)? * unit(i);
                     }
                 }
                 (m, MatrixSource::UserAxis)

@@ -99,9 +99,7 @@ impl DaqFrame {
         b[0..2].copy_from_slice(&SYNC);
         b[2..6].copy_from_slice(&self.sequence.to_be_bytes());
         b[6..10].copy_from_slice(&self.device_time_us.to_be_bytes());
-        for i in 0..6 {
-            b[10 + 4 * i..14 + 4 * i].copy_from_slice(&self.gauges_uv[i].to_be_bytes());
-        }
+        super::put_be_i32x6(&mut b, 10, &self.gauges_uv);
         b[34..38].copy_from_slice(&self.thermistor_uv.to_be_bytes());
         b[38] = self.status;
         let crc = crc16_ccitt(&b[2..39]);
@@ -118,15 +116,11 @@ impl DaqFrame {
         if crc16_ccitt(&b[2..39]) != crc {
             return None;
         }
-        let u = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-        let mut gauges_uv = [0i32; 6];
-        for (k, g) in gauges_uv.iter_mut().enumerate() {
-            *g = u(10 + 4 * k) as i32;
-        }
+        let u = |at: usize| super::be_u32(b, at);
         Some(Self {
             sequence: u(2),
             device_time_us: u(6),
-            gauges_uv,
+            gauges_uv: super::be_i32x6(b, 10),
             thermistor_uv: u(34) as i32,
             status: b[38],
         })

@@ -10,7 +10,7 @@
 //!   N·mm counts / CPT.
 //! - [`netft`]: an ATI Net F/T box over UDP port 49152 (RDT): an 8-byte request starts or
 //!   stops streaming, every 36-byte record carries a `u32` RDT sequence from which
-//!   [`netft::SequenceTracker`] counts lost, reordered and duplicated packets exactly.
+//!   [`sequence::SequenceTracker`] counts lost, reordered and duplicated packets exactly.
 //! - [`daq`]: raw gauge voltages (and a thermistor) from a DAQ front end, in this project's own
 //!   framing with a CRC-16 (spec in that module). The rig turns them into a wrench with the
 //!   sensor's calibration file.
@@ -22,8 +22,16 @@
 //! - [`transform`]: the tool transform that moves a wrench from the sensor's reference point to
 //!   the indenter tip, with a near-singularity check.
 //! - [`bias`]: the tare estimator (mean and standard error over a window of samples).
+//! - [`sequence`]: a device's u32 sequence number (RDT, DAQ frames): loss, reordering and
+//!   duplicate counts, and the number unwrapped to a u64.
 //! - [`SampleFlags`] and [`saturation_mask`]: what is wrong with one sample, never passed
 //!   silently.
+//!
+//! - The Nano17 SI-25-0.25's data-sheet values ([`NANO17_SI_25_MAX`],
+//!   [`NANO17_SI_25_RESOLUTION`]), the counts per unit of each front end
+//!   ([`serial::DEFAULT_COUNTS_PER_FORCE`], [`netft::FACTORY_COUNTS_PER_FORCE`], ...) and the
+//!   one conversion between counts and N, N·mm ([`counts_to_wrench`], [`wrench_to_counts`]):
+//!   named here once, used by the rig's readers and the simulated devices alike.
 //!
 //! Units: forces in N, torques in N·mm, gauge signals in volts, time in `t_ns`.
 
@@ -31,6 +39,7 @@ pub mod bias;
 pub mod cal;
 pub mod daq;
 pub mod netft;
+pub mod sequence;
 pub mod serial;
 pub mod transform;
 
@@ -38,6 +47,10 @@ use std::fmt;
 
 /// Axis names in the order used everywhere: `[Fx, Fy, Fz, Tx, Ty, Tz]`.
 pub const AXES: [&str; 6] = ["Fx", "Fy", "Fz", "Tx", "Ty", "Tz"];
+
+/// Sample rate a front end is asked for when `force_sensor.rate_hz` is not given, Hz; the
+/// simulated F/T controller and DAQ front end stream at it by default.
+pub const DEFAULT_RATE_HZ: f64 = 1000.0;
 
 /// Nano17 SI-25-0.25 ranges (ATI Nano17 data sheet): Fx, Fy ±25 N, Fz ±35 N, Tx..Tz ±250 N·mm.
 pub const NANO17_SI_25_MAX: [f64; 6] = [25.0, 25.0, 35.0, 250.0, 250.0, 250.0];
@@ -163,19 +176,54 @@ pub fn saturation_mask(values: &[f64; 6], max: &[f64; 6]) -> u8 {
     mask
 }
 
+/// Counts per unit of axis `axis` of `[Fx, Fy, Fz, Tx, Ty, Tz]`: counts per force (per N) for
+/// the forces, counts per torque (per N·mm) for the torques.
+pub fn counts_per_unit(axis: usize, counts_per_force: f64, counts_per_torque: f64) -> f64 {
+    if axis < 3 {
+        counts_per_force
+    } else {
+        counts_per_torque
+    }
+}
+
 /// F/T counts to `[Fx, Fy, Fz]` N and `[Tx, Ty, Tz]` N·mm: forces divide by counts per force,
-/// torques by counts per torque (ATI: newtons = counts / CPF, N·mm = counts / CPT).
+/// torques by counts per torque (ATI: newtons = counts / CPF, N·mm = counts / CPT). The counts
+/// are `f64` so that a tare (a mean of counts) can be subtracted first.
 pub fn counts_to_wrench(
-    counts: &[i32; 6],
+    counts: &[f64; 6],
     counts_per_force: f64,
     counts_per_torque: f64,
 ) -> [f64; 6] {
+    std::array::from_fn(|i| counts[i] / counts_per_unit(i, counts_per_force, counts_per_torque))
+}
+
+/// The inverse of [`counts_to_wrench`]: what a controller or Net F/T sends for a wrench, each
+/// axis rounded to whole counts and clamped to the `i32` range.
+pub fn wrench_to_counts(
+    wrench: &[f64; 6],
+    counts_per_force: f64,
+    counts_per_torque: f64,
+) -> [i32; 6] {
     std::array::from_fn(|i| {
-        let k = if i < 3 {
-            counts_per_force
-        } else {
-            counts_per_torque
-        };
-        f64::from(counts[i]) / k
+        (wrench[i] * counts_per_unit(i, counts_per_force, counts_per_torque))
+            .round()
+            .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
     })
+}
+
+/// Big-endian `u32` at byte `at` of `b` (DAQ frames and RDT records are big-endian).
+pub(crate) fn be_u32(b: &[u8], at: usize) -> u32 {
+    u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+}
+
+/// Six big-endian `i32` (gauges or counts) from byte `at` of `b` on.
+pub(crate) fn be_i32x6(b: &[u8], at: usize) -> [i32; 6] {
+    std::array::from_fn(|k| be_u32(b, at + 4 * k) as i32)
+}
+
+/// Writes six `i32` big-endian into `b` from byte `at` on.
+pub(crate) fn put_be_i32x6(b: &mut [u8], at: usize, values: &[i32; 6]) {
+    for (k, v) in values.iter().enumerate() {
+        b[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_be_bytes());
+    }
 }

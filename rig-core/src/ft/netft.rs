@@ -21,9 +21,10 @@
 //! counts / counts-per-force, torques counts / counts-per-torque (from the box's configuration
 //! page; the factory default is 1 000 000 counts per N and per N·m).
 //!
-//! UDP may lose, reorder and duplicate packets. [`SequenceTracker`] classifies every arriving
-//! `rdt_sequence` and keeps exact counts: a gap adds its size to `lost`; a packet that later
-//! fills a gap moves one from `lost` to `reordered`; a sequence seen before is a duplicate.
+//! UDP may lose, reorder and duplicate packets. [`SequenceTracker`] (from
+//! [`super::sequence`], re-exported here) classifies every arriving `rdt_sequence` and keeps
+//! exact counts: a gap adds its size to `lost`; a packet that later fills a gap moves one from
+//! `lost` to `reordered`; a sequence seen before is a duplicate.
 
 /// The Net F/T's RDT port.
 pub const RDT_PORT: u16 = 49152;
@@ -35,6 +36,10 @@ pub const REQUEST_LEN: usize = 8;
 pub const RECORD_LEN: usize = 36;
 /// Fastest real-time RDT output of a Net F/T, Hz.
 pub const MAX_RDT_RATE_HZ: f64 = 7000.0;
+/// Counts per newton of a Net F/T as shipped (its configuration page can change it).
+pub const FACTORY_COUNTS_PER_FORCE: f64 = 1e6;
+/// Counts per N·mm of a Net F/T as shipped: 1 000 000 per N·m.
+pub const FACTORY_COUNTS_PER_TORQUE: f64 = 1e3;
 /// Status bit 31: the box reports an error.
 pub const STATUS_ERROR: u32 = 1 << 31;
 
@@ -114,7 +119,7 @@ impl RdtRequest {
         }
         Ok(Self {
             command: RdtCommand::from_code(u16::from_be_bytes([b[2], b[3]])),
-            sample_count: u32::from_be_bytes([b[4], b[5], b[6], b[7]]),
+            sample_count: super::be_u32(b, 4),
         })
     }
 }
@@ -134,9 +139,7 @@ impl RdtRecord {
         b[0..4].copy_from_slice(&self.rdt_sequence.to_be_bytes());
         b[4..8].copy_from_slice(&self.ft_sequence.to_be_bytes());
         b[8..12].copy_from_slice(&self.status.to_be_bytes());
-        for i in 0..6 {
-            b[12 + 4 * i..16 + 4 * i].copy_from_slice(&self.counts[i].to_be_bytes());
-        }
+        super::put_be_i32x6(&mut b, 12, &self.counts);
         b
     }
 
@@ -145,16 +148,12 @@ impl RdtRecord {
         if b.len() != RECORD_LEN {
             return Err(RdtError::RecordLength(b.len()));
         }
-        let u = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-        let mut counts = [0i32; 6];
-        for (k, c) in counts.iter_mut().enumerate() {
-            *c = u(12 + 4 * k) as i32;
-        }
+        let u = |at: usize| super::be_u32(b, at);
         Ok(Self {
             rdt_sequence: u(0),
             ft_sequence: u(4),
             status: u(8),
-            counts,
+            counts: super::be_i32x6(b, 12),
         })
     }
 
@@ -169,112 +168,12 @@ impl RdtRecord {
 
     /// N and N·mm from counts.
     pub fn to_wrench(&self, counts_per_force: f64, counts_per_torque: f64) -> [f64; 6] {
-        super::counts_to_wrench(&self.counts, counts_per_force, counts_per_torque)
+        super::counts_to_wrench(
+            &self.counts.map(f64::from),
+            counts_per_force,
+            counts_per_torque,
+        )
     }
 }
 
-/// How one arriving sequence number relates to those before it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Arrival {
-    /// The first packet seen.
-    First,
-    /// The next one expected.
-    InOrder,
-    /// Newer than expected: `missing` packets in between are (for now) lost.
-    AfterGap { missing: u32 },
-    /// Older than the newest, filling an earlier gap: reordered, not lost.
-    Late,
-    /// Seen before, or too old to tell (beyond the tracking window).
-    Duplicate,
-}
-
-/// Exact loss / reorder / duplicate counts.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
-pub struct SequenceStats {
-    pub received: u64,
-    pub lost: u64,
-    pub reordered: u64,
-    pub duplicates: u64,
-    /// Gaps larger than [`MAX_TRACKED_GAP`] (counted in `lost` but not individually tracked).
-    pub large_gaps: u64,
-}
-
-/// Largest gap whose missing sequence numbers are remembered individually (so a late packet
-/// can be told from a duplicate). Larger jumps (a box restart) still count as lost.
-pub const MAX_TRACKED_GAP: u32 = 4096;
-/// How far behind the newest sequence a missing number is still remembered.
-pub const TRACK_WINDOW: u32 = 1 << 16;
-
-/// Tracks a u32 sequence (wrapping) for loss and reordering. See the module docs.
-#[derive(Debug, Clone, Default)]
-pub struct SequenceTracker {
-    newest: Option<u32>,
-    missing: std::collections::BTreeSet<u64>,
-    // Unwrapped counterpart of `newest`, so that the missing set orders correctly across wraps.
-    newest_unwrapped: u64,
-    stats: SequenceStats,
-}
-
-impl SequenceTracker {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    pub fn stats(&self) -> SequenceStats {
-        self.stats
-    }
-
-    /// Classifies `seq` and updates the counts.
-    pub fn observe(&mut self, seq: u32) -> Arrival {
-        self.stats.received += 1;
-        let Some(newest) = self.newest else {
-            self.newest = Some(seq);
-            self.newest_unwrapped = u64::from(seq) + (1 << 32);
-            return Arrival::First;
-        };
-        let delta = seq.wrapping_sub(newest) as i32;
-        if delta > 0 {
-            let missing = (delta - 1) as u32;
-            let base = self.newest_unwrapped;
-            if missing > MAX_TRACKED_GAP {
-                self.stats.large_gaps += 1;
-            } else {
-                for k in 1..=u64::from(missing) {
-                    self.missing.insert(base + k);
-                }
-            }
-            self.stats.lost += u64::from(missing);
-            self.newest = Some(seq);
-            self.newest_unwrapped = base + delta as u64;
-            // Forget gaps too old to be filled.
-            let horizon = self
-                .newest_unwrapped
-                .saturating_sub(u64::from(TRACK_WINDOW));
-            while let Some(&first) = self.missing.first() {
-                if first >= horizon {
-                    break;
-                }
-                self.missing.pop_first();
-            }
-            if missing == 0 {
-                Arrival::InOrder
-            } else {
-                Arrival::AfterGap { missing }
-            }
-        } else if delta == 0 {
-            self.stats.duplicates += 1;
-            Arrival::Duplicate
-        } else {
-            let back = u64::from(delta.unsigned_abs());
-            let unwrapped = self.newest_unwrapped.saturating_sub(back);
-            if self.missing.remove(&unwrapped) {
-                self.stats.lost -= 1;
-                self.stats.reordered += 1;
-                Arrival::Late
-            } else {
-                self.stats.duplicates += 1;
-                Arrival::Duplicate
-            }
-        }
-    }
-}
+pub use super::sequence::{Arrival, MAX_TRACKED_GAP, SequenceStats, SequenceTracker, TRACK_WINDOW};

@@ -42,6 +42,11 @@ pub const BINARY_RECORD_LEN: usize = 13;
 pub const BINARY_LOCK_RECORDS: usize = 3;
 /// An ASCII line longer than this without a line end is garbage.
 pub const MAX_LINE_LEN: usize = 160;
+/// Counts per newton taken for an F/T controller when the config gives none
+/// (`force_sensor.counts_per_force`), and sent by the simulated controller.
+pub const DEFAULT_COUNTS_PER_FORCE: f64 = 320.0;
+/// Counts per N·mm likewise (`force_sensor.counts_per_torque`).
+pub const DEFAULT_COUNTS_PER_TORQUE: f64 = 64.0;
 
 /// Record format the controller is set to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
@@ -133,7 +138,11 @@ pub struct CountsRecord {
 impl CountsRecord {
     /// N and N·mm from counts.
     pub fn to_wrench(&self, counts_per_force: f64, counts_per_torque: f64) -> [f64; 6] {
-        super::counts_to_wrench(&self.counts, counts_per_force, counts_per_torque)
+        super::counts_to_wrench(
+            &self.counts.map(f64::from),
+            counts_per_force,
+            counts_per_torque,
+        )
     }
 
     /// The ASCII line (CR LF included), as the controller prints it.
@@ -168,11 +177,7 @@ pub fn plausible_counts(
 ) -> [i32; 6] {
     let mut out = [i32::from(i16::MAX); 6];
     for i in 0..6 {
-        let k = if i < 3 {
-            counts_per_force
-        } else {
-            counts_per_torque
-        };
+        let k = super::counts_per_unit(i, counts_per_force, counts_per_torque);
         let m = (max_loads[i] * k * margin).ceil();
         if m.is_finite() && m > 0.0 {
             out[i] = m.min(f64::from(i16::MAX)) as i32;

@@ -45,6 +45,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::config::ids::{is_id, is_id_char};
+
 pub use heightmap::{GridError, Heightmap};
 pub use shape::{Primitive, Shape};
 pub use stl::{Centre, Mesh, StlOptions, TipDirection};
@@ -500,10 +502,7 @@ fn parse_shape(mut table: toml::Table) -> Result<Shape, (String, String)> {
 }
 
 fn check_name(name: &str, origin: &str) -> Result<(), IndenterError> {
-    let ok = !name.is_empty()
-        && name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
+    let ok = !name.is_empty() && is_id(name);
     if ok {
         Ok(())
     } else {
@@ -520,13 +519,7 @@ fn check_name(name: &str, origin: &str) -> Result<(), IndenterError> {
 fn sanitise_name(stem: &str) -> String {
     let s: String = stem
         .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.') {
-                c
-            } else {
-                '_'
-            }
-        })
+        .map(|c| if is_id_char(c) { c } else { '_' })
         .collect();
     if s.is_empty() { "stl".into() } else { s }
 }

@@ -250,12 +250,7 @@ impl Shape {
         if !rotation_deg.is_finite() {
             return Err(("rotation_deg".into(), "must be a finite number".into()));
         }
-        if !(lift_mm.is_finite() && lift_mm >= 0.0) {
-            return Err((
-                "lift_mm".into(),
-                format!("{lift_mm} must be finite and ≥ 0"),
-            ));
-        }
+        non_negative("lift_mm", lift_mm)?;
         let bumps = match &primitive {
             Primitive::RandomBumps(r) => generate_bumps(r),
             _ => Vec::new(),
@@ -485,6 +480,36 @@ fn fail(key: &str, reason: String) -> Check {
     Err((key.into(), reason))
 }
 
+fn non_negative(key: &str, x: f64) -> Check {
+    if x.is_finite() && x >= 0.0 {
+        Ok(())
+    } else {
+        fail(key, format!("{x} must be finite and ≥ 0"))
+    }
+}
+
+/// `x` mm must be strictly below `limit_key` = `limit` mm.
+fn below(key: &str, x: f64, limit_key: &str, limit: f64) -> Check {
+    if x < limit {
+        Ok(())
+    } else {
+        fail(
+            key,
+            format!("{x} mm must be below {limit_key} = {limit} mm"),
+        )
+    }
+}
+
+/// `x` mm may not exceed `limit_key` = `limit` mm; `why` (with a leading space, or empty) says
+/// what would go wrong.
+fn not_above(key: &str, x: f64, limit_key: &str, limit: f64, why: &str) -> Check {
+    if x > limit {
+        fail(key, format!("{x} mm exceeds {limit_key} = {limit} mm{why}"))
+    } else {
+        Ok(())
+    }
+}
+
 /// Checks a primitive's parameters so that its gap function is well defined and reaches 0.
 fn check_primitive(p: &Primitive) -> Check {
     match p {
@@ -492,12 +517,7 @@ fn check_primitive(p: &Primitive) -> Check {
             positive("radius_mm", p.radius_mm)?;
             if let Some(rim) = p.rim_radius_mm {
                 positive("rim_radius_mm", rim)?;
-                if rim > p.radius_mm {
-                    return fail(
-                        "rim_radius_mm",
-                        format!("{rim} mm exceeds radius_mm = {} mm", p.radius_mm),
-                    );
-                }
+                not_above("rim_radius_mm", rim, "radius_mm", p.radius_mm, "")?;
             }
         }
         Primitive::Cone(p) => {
@@ -507,34 +527,23 @@ fn check_primitive(p: &Primitive) -> Check {
         Primitive::FlatPunch(p) => positive("radius_mm", p.radius_mm)?,
         Primitive::Ring(p) => {
             positive("outer_radius_mm", p.outer_radius_mm)?;
-            if !(p.inner_radius_mm.is_finite() && p.inner_radius_mm >= 0.0) {
-                return fail(
-                    "inner_radius_mm",
-                    format!("{} must be finite and ≥ 0", p.inner_radius_mm),
-                );
-            }
-            if p.inner_radius_mm >= p.outer_radius_mm {
-                return fail(
-                    "inner_radius_mm",
-                    format!(
-                        "{} mm must be below outer_radius_mm = {} mm",
-                        p.inner_radius_mm, p.outer_radius_mm
-                    ),
-                );
-            }
+            non_negative("inner_radius_mm", p.inner_radius_mm)?;
+            below(
+                "inner_radius_mm",
+                p.inner_radius_mm,
+                "outer_radius_mm",
+                p.outer_radius_mm,
+            )?;
         }
         Primitive::Torus(p) => {
             positive("major_radius_mm", p.major_radius_mm)?;
             positive("minor_radius_mm", p.minor_radius_mm)?;
-            if p.minor_radius_mm >= p.major_radius_mm {
-                return fail(
-                    "minor_radius_mm",
-                    format!(
-                        "{} mm must be below major_radius_mm = {} mm",
-                        p.minor_radius_mm, p.major_radius_mm
-                    ),
-                );
-            }
+            below(
+                "minor_radius_mm",
+                p.minor_radius_mm,
+                "major_radius_mm",
+                p.major_radius_mm,
+            )?;
         }
         Primitive::Polygon(p) => {
             if p.sides < 3 {
@@ -550,15 +559,13 @@ fn check_primitive(p: &Primitive) -> Check {
             positive("width_mm", p.width_mm)?;
             if p.count > 1 {
                 positive("pitch_mm", p.pitch_mm)?;
-                if p.width_mm > p.pitch_mm {
-                    return fail(
-                        "width_mm",
-                        format!(
-                            "{} mm exceeds pitch_mm = {} mm (bars would merge)",
-                            p.width_mm, p.pitch_mm
-                        ),
-                    );
-                }
+                not_above(
+                    "width_mm",
+                    p.width_mm,
+                    "pitch_mm",
+                    p.pitch_mm,
+                    " (bars would merge)",
+                )?;
             }
         }
         Primitive::Wedge(p) => {
@@ -621,21 +628,14 @@ fn check_primitive(p: &Primitive) -> Check {
             positive("area_radius_mm", p.area_radius_mm)?;
             positive("radius_min_mm", p.radius_min_mm)?;
             positive("radius_max_mm", p.radius_max_mm)?;
-            if p.radius_min_mm > p.radius_max_mm {
-                return fail(
-                    "radius_min_mm",
-                    format!(
-                        "{} mm exceeds radius_max_mm = {} mm",
-                        p.radius_min_mm, p.radius_max_mm
-                    ),
-                );
-            }
-            if !(p.max_lift_mm.is_finite() && p.max_lift_mm >= 0.0) {
-                return fail(
-                    "max_lift_mm",
-                    format!("{} must be finite and ≥ 0", p.max_lift_mm),
-                );
-            }
+            not_above(
+                "radius_min_mm",
+                p.radius_min_mm,
+                "radius_max_mm",
+                p.radius_max_mm,
+                "",
+            )?;
+            non_negative("max_lift_mm", p.max_lift_mm)?;
         }
     }
     Ok(())

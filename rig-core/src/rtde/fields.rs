@@ -121,21 +121,19 @@ fn register(name: &str, prefix: &str) -> Option<DataType> {
 
 /// Type of a controller output variable, `None` when the controller has no such output.
 pub fn output_type(name: &str) -> Option<DataType> {
-    OUTPUTS
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map(|(_, t)| *t)
+    listed(OUTPUTS, name)
         .or_else(|| register(name, "output_"))
         .or_else(|| register(name, "input_"))
 }
 
 /// Type of a controller input variable, `None` when the controller has no such input.
 pub fn input_type(name: &str) -> Option<DataType> {
-    INPUTS
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map(|(_, t)| *t)
-        .or_else(|| register(name, "input_"))
+    listed(INPUTS, name).or_else(|| register(name, "input_"))
+}
+
+/// The type `table` gives `name`, if it lists it.
+fn listed(table: &[(&str, DataType)], name: &str) -> Option<DataType> {
+    table.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
 }
 
 /// Every fixed-name output, for listings and tests.

@@ -161,6 +161,26 @@ fn ft_rdt_tracker_counts_loss_reorder_duplicates_across_wrap() {
     );
 }
 
+#[test]
+fn ft_sequence_unwraps_across_the_u32_wrap_for_every_arrival() {
+    let mut t = SequenceTracker::new();
+    let start = u32::MAX - 1;
+    let first = u64::from(start);
+    assert_eq!(t.observe_unwrapped(start), (Arrival::First, first));
+    assert_eq!(t.observe_unwrapped(u32::MAX), (Arrival::InOrder, first + 1));
+    // 0 and 1 lost across the wrap; 2 is the fourth number.
+    assert_eq!(
+        t.observe_unwrapped(2),
+        (Arrival::AfterGap { missing: 2 }, first + 4)
+    );
+    assert_eq!(t.observe_unwrapped(0), (Arrival::Late, first + 2));
+    assert_eq!(t.observe_unwrapped(2), (Arrival::Duplicate, first + 4));
+    // From before the first number: the same u32 arithmetic, near u64::MAX below zero.
+    let mut t = SequenceTracker::new();
+    assert_eq!(t.observe_unwrapped(0), (Arrival::First, 0));
+    assert_eq!(t.observe_unwrapped(u32::MAX).1, u64::MAX);
+}
+
 proptest! {
     #[test]
     fn ft_rdt_tracker_is_exact_for_any_local_shuffle_and_drop(

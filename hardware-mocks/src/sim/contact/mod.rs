@@ -86,14 +86,13 @@ mod kernels;
 mod normal;
 mod tangential;
 
-use std::str::FromStr;
-
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::{Geometry, Indenter, Primitive};
 use rig_core::wrench::Wrench;
 use rustfft::num_complex::Complex64;
 
-use super::{Scene, SimError, SimStats};
+pub use super::scene::{ContactModel, FrictionModel, Viscoelastic};
+use super::scene::{Scene, SimError, SimStats};
 
 /// Closed-form reference forces (N) for the benchmark and tests; `e_star_mpa` is `E/(1−ν²)`.
 pub mod analytic {
@@ -127,78 +126,6 @@ pub mod analytic {
 pub const DEFAULT_CELL_MM: f64 = 0.1;
 /// Most cells a contact grid may have (a typo in a cell size must not exhaust memory).
 pub const MAX_GRID_CELLS: usize = 1 << 20;
-
-/// Which contact model a scene uses (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum ContactModel {
-    /// Analytic sphere on a half-space.
-    Hertz,
-    /// Independent springs `k = M / h`.
-    Winkler,
-    /// FFT boundary elements on an elastic half-space.
-    HalfSpace,
-    /// FFT boundary elements on a layer of the gel's thickness bonded to a rigid base.
-    #[default]
-    Layer,
-}
-
-impl ContactModel {
-    pub const ALL: [ContactModel; 4] = [
-        ContactModel::Hertz,
-        ContactModel::Winkler,
-        ContactModel::HalfSpace,
-        ContactModel::Layer,
-    ];
-
-    /// Name as used on command lines: `hertz`, `winkler`, `half-space`, `layer`.
-    pub fn name(self) -> &'static str {
-        match self {
-            ContactModel::Hertz => "hertz",
-            ContactModel::Winkler => "winkler",
-            ContactModel::HalfSpace => "half-space",
-            ContactModel::Layer => "layer",
-        }
-    }
-}
-
-impl std::fmt::Display for ContactModel {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for ContactModel {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        ContactModel::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                format!("unknown contact model `{s}`; one of: hertz, winkler, half-space, layer")
-            })
-    }
-}
-
-/// Tangential behaviour.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum FrictionModel {
-    /// No tangential traction (no tangential solve at all).
-    #[default]
-    None,
-    /// Coulomb stick/slip, each frame one shear step from the unloaded state (no history).
-    Monotonic,
-    /// Coulomb stick/slip with history carried between frames by a `Simulator`.
-    Incremental,
-}
-
-/// Standard-linear-solid relaxation of the contact force.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Viscoelastic {
-    /// Instantaneous over relaxed modulus, ≥ 1.
-    pub instant_ratio: f64,
-    /// Relaxation time, s (> 0).
-    pub tau_s: f64,
-}
 
 /// Surface fields on a regular grid over the gel, in the sensor surface frame.
 ///
@@ -269,51 +196,44 @@ pub struct Material {
 impl Material {
     /// Checks the elastomer's values: `E > 0`, `0 ≤ ν < 0.5`, `h > 0`, `μ ≥ 0`, size > 0.
     pub fn from_config(c: &ElastomerConfig) -> Result<Self, SimError> {
-        let bad = |name, value: f64, reason: &str| SimError::InvalidParameter {
-            name,
-            value,
-            reason: reason.to_owned(),
-        };
-        let e = c.youngs_modulus_mpa;
-        if !(e.is_finite() && e > 0.0) {
-            return Err(bad(
-                "elastomer.youngs_modulus_mpa",
-                e,
-                "must be a finite number > 0",
-            ));
-        }
-        let nu = c.poisson_ratio;
-        if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
-            return Err(bad(
-                "elastomer.poisson_ratio",
-                nu,
-                "must be in [0, 0.5) (0.5 is incompressible: use 0.49)",
-            ));
-        }
-        let h = c.thickness_mm;
-        if !(h.is_finite() && h > 0.0) {
-            return Err(bad(
-                "elastomer.thickness_mm",
-                h,
-                "must be a finite number > 0",
-            ));
-        }
-        let mu = c.friction_coefficient;
-        if !(mu.is_finite() && mu >= 0.0) {
-            return Err(bad(
-                "elastomer.friction_coefficient",
-                mu,
-                "must be a finite number ≥ 0",
-            ));
-        }
-        for (name, v) in [
-            ("elastomer.size_x_mm", c.size_x_mm),
-            ("elastomer.size_y_mm", c.size_y_mm),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(bad(name, v, "must be a finite number > 0"));
+        // Each value must hold `ok`, else the error names it and says what it must be.
+        let check = |name, value: f64, ok: bool, reason: &str| {
+            if ok {
+                Ok(value)
+            } else {
+                Err(SimError::InvalidParameter {
+                    name,
+                    value,
+                    reason: reason.to_owned(),
+                })
             }
-        }
+        };
+        let positive = |name, v: f64| {
+            check(
+                name,
+                v,
+                v.is_finite() && v > 0.0,
+                "must be a finite number > 0",
+            )
+        };
+        let e = positive("elastomer.youngs_modulus_mpa", c.youngs_modulus_mpa)?;
+        let nu = c.poisson_ratio;
+        check(
+            "elastomer.poisson_ratio",
+            nu,
+            nu.is_finite() && (0.0..0.5).contains(&nu),
+            "must be in [0, 0.5) (0.5 is incompressible: use 0.49)",
+        )?;
+        let h = positive("elastomer.thickness_mm", c.thickness_mm)?;
+        let mu = c.friction_coefficient;
+        check(
+            "elastomer.friction_coefficient",
+            mu,
+            mu.is_finite() && mu >= 0.0,
+            "must be a finite number ≥ 0",
+        )?;
+        positive("elastomer.size_x_mm", c.size_x_mm)?;
+        positive("elastomer.size_y_mm", c.size_y_mm)?;
         Ok(Self {
             youngs_mpa: e,
             poisson: nu,

@@ -1,11 +1,42 @@
-//! Surface fields as the renderer needs them: resampled onto the image's pixel grid, and a
-//! purely geometric field for tests and previews.
+//! Surface fields as the renderer needs them: the image's pixel grid over the gel ([`Raster`]),
+//! the fields resampled onto it, and a purely geometric field for tests and previews.
 
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::Indenter;
+use rig_core::optics::OpticsConfig;
 
 use super::super::contact::SurfaceField;
-use super::Raster;
+
+/// The pixel grid of an image over the gel.
+pub(crate) struct Raster {
+    pub width: usize,
+    pub height: usize,
+    pub mm_per_px: f64,
+}
+
+impl Raster {
+    pub(crate) fn new(optics: &OpticsConfig) -> Self {
+        let side = |v: u32| (v.min(rig_core::optics::MAX_SIDE_PX)) as usize;
+        let mm_per_px = if optics.mm_per_px.is_finite() && optics.mm_per_px > 0.0 {
+            optics.mm_per_px
+        } else {
+            OpticsConfig::default().mm_per_px
+        };
+        Self {
+            width: side(optics.width_px),
+            height: side(optics.height_px),
+            mm_per_px,
+        }
+    }
+
+    pub fn x_mm(&self, u: usize) -> f64 {
+        (u as f64 + 0.5 - self.width as f64 / 2.0) * self.mm_per_px
+    }
+
+    pub fn y_mm(&self, v: usize) -> f64 {
+        (self.height as f64 / 2.0 - v as f64 - 0.5) * self.mm_per_px
+    }
+}
 
 /// The gel surface at every pixel, in the camera's view: `height_mm` is how far the surface
 /// has come towards the camera (`−uz`, ≥ 0 where pressed), `grad` its gradient, `shift` the
@@ -18,6 +49,18 @@ pub(crate) struct PixelField {
     pub max_height_mm: f32,
     /// Whether the field is flat and still (every value zero): the renderer can skip work.
     pub flat: bool,
+}
+
+/// The two cells either side of fractional cell index `f` on an axis of `n` cells, and the
+/// weight of the second; `None` when `f` lies more than half a cell outside the axis.
+fn bracket(f: f64, n: usize) -> Option<(usize, usize, f32)> {
+    if f < -0.5 || f > n as f64 - 0.5 {
+        return None;
+    }
+    let f = f.clamp(0.0, (n - 1) as f64);
+    let i0 = (f.floor() as usize).min(n.saturating_sub(2));
+    let t = if n < 2 { 0.0 } else { (f - i0 as f64) as f32 };
+    Some((i0, (i0 + 1).min(n - 1), t))
 }
 
 /// Resamples `field` (bilinear; zero outside its grid, non-finite values read as zero) at the
@@ -82,24 +125,14 @@ pub(crate) fn resample(field: &SurfaceField, raster: &Raster) -> PixelField {
     let inv_cell = 1.0 / cell;
     for v in 0..raster.height {
         let y = raster.y_mm(v);
-        let fy = (y - field.origin_mm[1]) * inv_cell;
-        if fy < -0.5 || fy > ny as f64 - 0.5 {
+        let Some((j0, j1, ty)) = bracket((y - field.origin_mm[1]) * inv_cell, ny) else {
             continue;
-        }
-        let fy = fy.clamp(0.0, (ny - 1) as f64);
-        let j0 = (fy.floor() as usize).min(ny.saturating_sub(2));
-        let ty = if ny < 2 { 0.0 } else { (fy - j0 as f64) as f32 };
-        let j1 = (j0 + 1).min(ny - 1);
+        };
         for u in 0..raster.width {
             let x = raster.x_mm(u);
-            let fx = (x - field.origin_mm[0]) * inv_cell;
-            if fx < -0.5 || fx > nx as f64 - 0.5 {
+            let Some((i0, i1, tx)) = bracket((x - field.origin_mm[0]) * inv_cell, nx) else {
                 continue;
-            }
-            let fx = fx.clamp(0.0, (nx - 1) as f64);
-            let i0 = (fx.floor() as usize).min(nx.saturating_sub(2));
-            let tx = if nx < 2 { 0.0 } else { (fx - i0 as f64) as f32 };
-            let i1 = (i0 + 1).min(nx - 1);
+            };
             let (a, b, c, d) = (
                 &cells[j0 * nx + i0],
                 &cells[j0 * nx + i1],
@@ -206,29 +239,27 @@ pub fn geometric_field(
 fn gaussian_grid(v: &[f64], nx: usize, ny: usize, sigma: f64) -> Vec<f64> {
     let kernel = gaussian_kernel(sigma);
     let r = kernel.len() / 2;
-    let mut tmp = vec![0.0; v.len()];
-    for j in 0..ny {
-        for i in 0..nx {
-            let mut s = 0.0;
-            for (t, w) in kernel.iter().enumerate() {
-                let ii = (i + t).saturating_sub(r).min(nx - 1);
-                s += w * v[j * nx + ii];
+    // One pass along x, then one along y: each output cell is the kernel-weighted sum of the
+    // cells `t - r` away along the pass's axis (index clamped to the grid).
+    let pass = |src: &[f64], along_x: bool| {
+        let mut dst = vec![0.0; src.len()];
+        for j in 0..ny {
+            for i in 0..nx {
+                let mut s = 0.0;
+                for (t, w) in kernel.iter().enumerate() {
+                    let k = if along_x {
+                        j * nx + (i + t).saturating_sub(r).min(nx - 1)
+                    } else {
+                        (j + t).saturating_sub(r).min(ny - 1) * nx + i
+                    };
+                    s += w * src[k];
+                }
+                dst[j * nx + i] = s;
             }
-            tmp[j * nx + i] = s;
         }
-    }
-    let mut out = vec![0.0; v.len()];
-    for j in 0..ny {
-        for i in 0..nx {
-            let mut s = 0.0;
-            for (t, w) in kernel.iter().enumerate() {
-                let jj = (j + t).saturating_sub(r).min(ny - 1);
-                s += w * tmp[jj * nx + i];
-            }
-            out[j * nx + i] = s;
-        }
-    }
-    out
+        dst
+    };
+    pass(&pass(v, true), false)
 }
 
 /// Normalised Gaussian taps over ±3σ (a single tap of 1 for σ ≈ 0).

@@ -52,86 +52,10 @@ mod noise;
 use rig_core::optics::OpticsConfig;
 
 use super::contact::SurfaceField;
+use field::Raster;
 
+pub use super::scene::ImageEffects;
 pub use field::geometric_field;
-
-/// Image effects a scene asks for, beyond shading over the background (always done when an
-/// image is rendered). [`ImageEffects::default`] is shading only; [`ImageEffects::realistic`]
-/// turns everything on with values close to a GelSight Mini's look.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImageEffects {
-    /// Draw the printed markers (when the sensor's pattern is not `none`).
-    pub markers: bool,
-    /// Cast shadows from the raised gel.
-    pub shadows: bool,
-    /// Gaussian blur σ, pixels; 0: off.
-    pub blur_sigma_px: f64,
-    /// Darkening at the image corners, fraction in [0, 1); 0: off.
-    pub vignetting: f64,
-    /// Sensor noise σ, 8-bit levels; 0: off.
-    pub noise_sigma: f64,
-}
-
-impl Default for ImageEffects {
-    fn default() -> Self {
-        Self::shading_only()
-    }
-}
-
-impl ImageEffects {
-    /// Shading over the background, nothing else.
-    pub const fn shading_only() -> Self {
-        Self {
-            markers: false,
-            shadows: false,
-            blur_sigma_px: 0.0,
-            vignetting: 0.0,
-            noise_sigma: 0.0,
-        }
-    }
-
-    /// Every effect on: markers, shadows, 0.8 px blur, 25 % vignetting, noise σ = 1.5 levels.
-    pub const fn realistic() -> Self {
-        Self {
-            markers: true,
-            shadows: true,
-            blur_sigma_px: 0.8,
-            vignetting: 0.25,
-            noise_sigma: 1.5,
-        }
-    }
-}
-
-/// The pixel grid of an image over the gel.
-pub(crate) struct Raster {
-    pub width: usize,
-    pub height: usize,
-    pub mm_per_px: f64,
-}
-
-impl Raster {
-    fn new(optics: &OpticsConfig) -> Self {
-        let side = |v: u32| (v.min(rig_core::optics::MAX_SIDE_PX)) as usize;
-        let mm_per_px = if optics.mm_per_px.is_finite() && optics.mm_per_px > 0.0 {
-            optics.mm_per_px
-        } else {
-            OpticsConfig::default().mm_per_px
-        };
-        Self {
-            width: side(optics.width_px),
-            height: side(optics.height_px),
-            mm_per_px,
-        }
-    }
-
-    pub fn x_mm(&self, u: usize) -> f64 {
-        (u as f64 + 0.5 - self.width as f64 / 2.0) * self.mm_per_px
-    }
-
-    pub fn y_mm(&self, v: usize) -> f64 {
-        (self.height as f64 / 2.0 - v as f64 - 0.5) * self.mm_per_px
-    }
-}
 
 /// One LED, precomputed.
 struct Light {

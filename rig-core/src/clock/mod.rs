@@ -33,6 +33,11 @@ use tokio::time::Instant;
 
 use tokio::sync::watch;
 
+mod simulated;
+
+pub use simulated::HoldStats;
+use simulated::{PacerSlot, Segment, SimState};
+
 /// A cheap, cloneable handle on a shared clock.
 #[derive(Clone, Debug)]
 pub struct Clock {
@@ -56,125 +61,6 @@ enum Inner {
         changed: watch::Sender<u64>,
         adjustable: bool,
     },
-}
-
-/// The state of a simulated clock: the current stretch at one rate, and the pacers it waits for.
-#[derive(Debug)]
-struct SimState {
-    seg: Segment,
-    /// The last time read: the clock never goes back, even when a pacer joins late.
-    last_ns: u64,
-    pacers: Vec<PacerSlot>,
-    next_id: u64,
-    /// Whether the clock is holding now (its free-running time is past a pacer's limit).
-    holding: bool,
-    stats: HoldStats,
-}
-
-#[derive(Debug, Clone, Copy)]
-struct PacerSlot {
-    id: u64,
-    name: &'static str,
-    reached_ns: u64,
-    lead: Duration,
-}
-
-/// How often, and how long in real time, a simulated clock held for its pacers.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct HoldStats {
-    /// Episodes of holding (a hold starts when the clock first reaches a pacer's limit).
-    pub holds: u64,
-    /// Real time spent holding, summed over the episodes (the one under way included).
-    pub held_s: f64,
-    /// The pacer that started the most recent hold.
-    pub last_holder: Option<&'static str>,
-    started: Option<std::time::Instant>,
-}
-
-impl SimState {
-    fn new(factor: f64) -> Self {
-        Self {
-            seg: Segment {
-                base: Instant::now(),
-                base_ns: 0,
-                factor,
-            },
-            last_ns: 0,
-            pacers: Vec::new(),
-            next_id: 0,
-            holding: false,
-            stats: HoldStats::default(),
-        }
-    }
-
-    /// The latest time the pacers allow, and the pacer that sets it (`u64::MAX` with none).
-    fn limit(&self) -> (u64, Option<&'static str>) {
-        let factor = self.seg.factor;
-        self.pacers
-            .iter()
-            .map(|p| {
-                let lead_ns = (p.lead.as_secs_f64() * factor * 1e9).min(1e18) as u64;
-                (p.reached_ns.saturating_add(lead_ns), Some(p.name))
-            })
-            .min_by_key(|(t, _)| *t)
-            .unwrap_or((u64::MAX, None))
-    }
-
-    /// The clock's time now. When the free-running time passes the pacers' limit the clock
-    /// holds there: the stretch restarts at the limit, so time moves on from it (never jumps)
-    /// once the pacers catch up.
-    fn now_ns(&mut self) -> u64 {
-        let free = self.seg.now_ns();
-        let (limit, holder) = self.limit();
-        let t = if free > limit {
-            let t = limit.max(self.last_ns);
-            self.seg = Segment {
-                base: Instant::now(),
-                base_ns: t,
-                factor: self.seg.factor,
-            };
-            if !self.holding {
-                self.holding = true;
-                self.stats.holds += 1;
-                self.stats.last_holder = holder;
-                self.stats.started = Some(std::time::Instant::now());
-            }
-            t
-        } else {
-            self.end_hold();
-            free.max(self.last_ns)
-        };
-        self.last_ns = t;
-        t
-    }
-
-    fn end_hold(&mut self) {
-        if self.holding {
-            self.holding = false;
-            if let Some(s) = self.stats.started.take() {
-                self.stats.held_s += s.elapsed().as_secs_f64();
-            }
-        }
-    }
-}
-
-/// A stretch of a governed clock at one rate: `t = base_ns + (now − base) · factor`.
-#[derive(Debug, Clone, Copy)]
-struct Segment {
-    base: Instant,
-    base_ns: u64,
-    factor: f64,
-}
-
-impl Segment {
-    fn now_ns(&self) -> u64 {
-        self.base_ns
-            .saturating_add((self.base.elapsed().as_secs_f64() * self.factor * 1e9) as u64)
-    }
-    fn deadline(&self, t_ns: u64) -> Instant {
-        let ahead = t_ns.saturating_sub(self.base_ns) as f64 * 1e-9 / self.factor;
-        self.base + Duration::from_secs_f64(ahead.min(1e9))
-    }
 }
 
 /// Advances a manual clock. Dropping it does not stop the clock's sleepers from being woken by
