@@ -116,29 +116,40 @@ pub struct EvalSet {
     forces: Vec<Vec<[f32; 3]>>,
 }
 
-impl LabelledSet {
-    /// A labelled set from frames and forces made in memory (tests, synthetic data).
-    pub fn from_parts(
-        spec: ImageSpec,
-        trajectories: Vec<Trajectory>,
-        forces: Vec<Vec<[f32; 3]>>,
-    ) -> anyhow::Result<Self> {
-        check_parts(&spec, &trajectories, &forces)?;
-        Ok(Self {
-            spec,
-            trajectories,
-            forces,
-        })
-    }
-    pub fn forces(&self, traj: usize) -> &[[f32; 3]] {
-        &self.forces[traj]
-    }
-    pub fn images(&self) -> UnlabelledSet {
-        UnlabelledSet {
-            spec: self.spec,
-            trajectories: self.trajectories.clone(),
+/// The constructor and accessors a set of frames with forces has, whichever side of the
+/// training/evaluation wall it stands on (the two stay distinct types).
+macro_rules! with_forces {
+    ($set:ident) => {
+        impl $set {
+            /// A set from frames and forces made in memory (tests, synthetic data, a load).
+            pub fn from_parts(
+                spec: ImageSpec,
+                trajectories: Vec<Trajectory>,
+                forces: Vec<Vec<[f32; 3]>>,
+            ) -> anyhow::Result<Self> {
+                check_parts(&spec, &trajectories, &forces)?;
+                Ok(Self {
+                    spec,
+                    trajectories,
+                    forces,
+                })
+            }
+            pub fn forces(&self, traj: usize) -> &[[f32; 3]] {
+                &self.forces[traj]
+            }
+            pub fn images(&self) -> UnlabelledSet {
+                UnlabelledSet {
+                    spec: self.spec,
+                    trajectories: self.trajectories.clone(),
+                }
+            }
         }
-    }
+    };
+}
+with_forces!(LabelledSet);
+with_forces!(EvalSet);
+
+impl LabelledSet {
     /// Only the trajectories whose indenter is in the split's seen group.
     pub fn seen_only(self, split: &Split) -> Self {
         let (trajectories, forces) = self
@@ -164,30 +175,6 @@ impl LabelledSet {
     /// Per-axis (min, max) of every force.
     pub fn force_bounds(&self) -> [(f32, f32); 3] {
         bounds(&self.forces)
-    }
-}
-
-impl EvalSet {
-    pub fn from_parts(
-        spec: ImageSpec,
-        trajectories: Vec<Trajectory>,
-        forces: Vec<Vec<[f32; 3]>>,
-    ) -> anyhow::Result<Self> {
-        check_parts(&spec, &trajectories, &forces)?;
-        Ok(Self {
-            spec,
-            trajectories,
-            forces,
-        })
-    }
-    pub fn forces(&self, traj: usize) -> &[[f32; 3]] {
-        &self.forces[traj]
-    }
-    pub fn images(&self) -> UnlabelledSet {
-        UnlabelledSet {
-            spec: self.spec,
-            trajectories: self.trajectories.clone(),
-        }
     }
 }
 
