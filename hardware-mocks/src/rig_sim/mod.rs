@@ -1,0 +1,409 @@
+//! The simulated rig as one scene: the simulated UR5e's TCP moves the indenter, and the contact
+//! gives both the force (sampled by the Net F/T mock) and the image (rendered for the simulated
+//! camera).
+//!
+//! # Pieces
+//!
+//! - [`ContactPhysics`]: a [`Simulator`](crate::sim::Simulator) stepped at a fixed rate of clock time
+//!   ([`PhysicsConfig::rate_hz`], default 250 Hz) from the TCP pose of a pose source
+//!   (the simulated UR5e's [`Ur5e::snapshot`]). Every step appends `(t_ns, wrench)` to a ring
+//!   buffer, keyed by the *pose's* time (the controller tick the pose belongs to), and keeps the
+//!   latest [`SurfaceField`](crate::sim::SurfaceField) when a camera needs it. It implements [`WrenchSource`](crate::truth::WrenchSource):
+//!   [`WrenchSource::wrench_at`](crate::truth::WrenchSource::wrench_at) interpolates linearly between the two buffered samples around
+//!   `t_ns` (clamped at both ends), so an F/T mock sampling at 1–7 kHz costs no extra solves.
+//! - [`PhysicsRenderer`]: a [`FrameRenderer`](crate::camera::FrameRenderer) that shades the latest surface field with the
+//!   sensor's optics ([`optics::render`](crate::sim::optics::render)).
+//! - [`SimRig`]: starts the UR5e, the physics task, a Net F/T mock driven by the physics and,
+//!   optionally, a simulated camera driven by the renderer, all on one [`Clock`].
+//!
+//! # Geometry
+//!
+//! The TCP is the indenter tip (see `rig_core::config`, "TCP at contact"). Its pose is expressed
+//! in the sensor surface frame, `p = pose_trans(pose_inv(surface_frame), tcp)`; then
+//! `contact_mm = (p.x, p.y)·1000`, `depth_mm = −p.z·1000`, `shear_mm = [0, 0]`: the indenter axis
+//! is at the TCP, and shearing is simply the contact point moving, with friction history
+//! ([`FrictionModel::Incremental`](crate::sim::FrictionModel::Incremental)) carrying the stick/slip state from step to step. Only the
+//! TCP position is used: the indenter is assumed to stay "tool pointing down" (the TCP
+//! orientation is not checked). At `depth_mm ≤ 0` the indenter is out of contact: the wrench is
+//! zero, the normal solver is skipped, and the friction history is forgotten (the gel is
+//! unloaded). A depth beyond the gel thickness cannot be simulated: the step is counted in
+//! [`PhysicsStats::errors`] and the last wrench is held.
+//!
+//! # Sign convention of the wrench
+//!
+//! The F/T tool frame has the **surface frame's axes**, with its origin at the **indenter tip**
+//! (the TCP). The wrench is the one the indenter exerts **on the gel** (the simulator's own
+//! convention), so pressing gives **Fz < 0**, matching the paper's range Fz −16..0 N. Torques
+//! are about the tip: the simulator's torque (about the contact point on the undeformed surface,
+//! `(x, y, 0)`) is moved down to the tip `(x, y, −depth)`: `T_tip = T_c + (0, 0, depth) × F`,
+//! i.e. `Tx −= depth·Fy`, `Ty += depth·Fx` (N·mm). The Net F/T mock's [`SensorModel`] gets the
+//! rig config's tool transform, so a reader applying the same transform recovers this wrench.
+//!
+//! # Cost
+//!
+//! One step, measured (release build, 2-core machine, cone 0.6 mm deep, sliding): finite layer
+//! at 0.4 mm cells with [`FrictionModel::Incremental`](crate::sim::FrictionModel::Incremental) about 5.4 ms; the same without friction
+//! 0.7 ms; 0.5 mm cells with friction 2.3 ms; Winkler with friction 27 µs. At 250 Hz of clock
+//! time the default setting therefore needs about 1.4 s of one core per clock second: on a
+//! scaled clock the task cannot keep up, skips ticks ([`PhysicsStats::skipped_ticks`]) and the
+//! buffer gets sparser (each sample is still exact for its pose time, and `wrench_at`
+//! interpolates between them). Choose [`PhysicsConfig`] for the clock's speed.
+//!
+//! # Timing limits
+//!
+//! The wrench at a time later than the newest physics step is the newest one (held, not
+//! extrapolated): an F/T sample lags the pose by at most one physics period plus one controller
+//! tick. The camera renders the newest field at its capture time, with the same lag.
+
+mod physics;
+
+use std::io;
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use rig_core::clock::Clock;
+use rig_core::config::RigConfig;
+use rig_core::ft::netft;
+use rig_core::ft::transform::ToolTransform;
+use rig_core::indenter::Indenter;
+use rig_core::pose::{Pose, pose_trans};
+use tokio::task::JoinHandle;
+
+use crate::camera::{SimCamera, SimCameraConfig};
+use crate::nano17::SensorModel;
+use crate::nano17::netft::{NetFtMock, NetFtMockConfig};
+use crate::nano17::serial::{SerialControllerMock, SerialMockConfig};
+use crate::sim::optics::ImageEffects;
+use crate::truth::SharedWrenchSource;
+use crate::ur5e::{Ur5e, Ur5eConfig};
+
+use physics::invalid;
+pub use physics::*;
+
+/// How [`SimRig::start`] sets the simulated rig up beyond the rig config.
+#[derive(Debug, Clone)]
+pub struct SimRigOptions {
+    /// The UR5e's TCP at start. `None`: `plan.approach_height_mm` above the surface centre,
+    /// tool pointing down (rotation vector `(π, 0, 0)` in the surface frame).
+    pub home_pose: Option<Pose>,
+    /// robot_mode at start (the rig powers a POWER_OFF robot up through the dashboard).
+    pub initial_robot_mode: i32,
+    pub physics: PhysicsConfig,
+    /// Net F/T records per second. `None`: `force_sensor.rate_hz` of the config, else 1 kHz.
+    pub netft_rate_hz: Option<f64>,
+    /// How the simulated Nano17 is connected: a Net F/T on UDP (default) or an F/T controller
+    /// on a serial pty (ASCII records), both driven by the same physics.
+    pub ft_front_end: SimFtFrontEnd,
+    /// Seed of the F/T noise.
+    pub netft_seed: u64,
+    /// Start a simulated camera with this behaviour; `None`: no camera (and no surface field).
+    pub camera: Option<SimCameraConfig>,
+    /// Image effects of the camera.
+    pub image_effects: ImageEffects,
+    /// Noise seed of the camera's images.
+    pub image_seed: u64,
+}
+
+impl Default for SimRigOptions {
+    fn default() -> Self {
+        Self {
+            home_pose: None,
+            initial_robot_mode: rig_core::control::robot_mode::POWER_OFF,
+            physics: PhysicsConfig::default(),
+            netft_rate_hz: None,
+            ft_front_end: SimFtFrontEnd::NetFt,
+            netft_seed: 49152,
+            camera: None,
+            image_effects: ImageEffects::default(),
+            image_seed: 0,
+        }
+    }
+}
+
+impl SimRigOptions {
+    /// Defaults, with an ideal camera at `camera.fps` when the config has a camera.
+    pub fn for_config(config: &RigConfig) -> Self {
+        Self {
+            camera: config
+                .camera
+                .as_ref()
+                .map(|c| SimCameraConfig::ideal(c.fps)),
+            ..Self::default()
+        }
+    }
+}
+
+/// The TCP pose `height_mm` above the surface point `(x_mm, y_mm)` (negative: below it, pressed
+/// in), tool pointing down (rotation vector `(π, 0, 0)` in the surface frame), in the base frame.
+pub fn pose_above_surface(surface_frame: &Pose, x_mm: f64, y_mm: f64, height_mm: f64) -> Pose {
+    pose_trans(
+        surface_frame,
+        &Pose::new(
+            x_mm * 1e-3,
+            y_mm * 1e-3,
+            height_mm * 1e-3,
+            std::f64::consts::PI,
+            0.0,
+            0.0,
+        ),
+    )
+}
+
+/// How the simulated Nano17 reaches the rig.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SimFtFrontEnd {
+    /// A Net F/T box on loopback UDP (RDT).
+    #[default]
+    NetFt,
+    /// An ATI F/T controller on a serial pty (ASCII records at the configured rate).
+    Serial,
+}
+
+/// The simulated F/T front end that runs.
+pub enum SimFt {
+    NetFt(NetFtMock),
+    Serial(SerialControllerMock),
+}
+
+impl SimFt {
+    /// Fault injection (unplug, mute, saturate, garbage ...).
+    pub fn faults(&self) -> &Arc<crate::nano17::Faults> {
+        match self {
+            SimFt::NetFt(m) => m.faults(),
+            SimFt::Serial(m) => m.faults(),
+        }
+    }
+    pub fn stats(&self) -> &Arc<crate::nano17::MockStats> {
+        match self {
+            SimFt::NetFt(m) => m.stats(),
+            SimFt::Serial(m) => m.stats(),
+        }
+    }
+    async fn shutdown(self) {
+        match self {
+            SimFt::NetFt(m) => m.shutdown().await,
+            SimFt::Serial(m) => m.shutdown().await,
+        }
+    }
+}
+
+/// The running simulated rig: UR5e, contact physics, Net F/T and (optionally) camera on one
+/// clock. Dropping it stops every task.
+pub struct SimRig {
+    /// Holds simulated time while the runtime the rig runs on is stalled.
+    _runtime_pacer: AbortOnDrop,
+    ur5e: Arc<Ur5e>,
+    physics: ContactPhysics,
+    physics_task: AbortOnDrop,
+    ft: SimFt,
+    camera: Option<SimCamera>,
+}
+
+impl SimRig {
+    /// Starts every piece on `clock` (within a tokio runtime). See [`SimRigOptions`].
+    pub async fn start(
+        config: &RigConfig,
+        indenter: Arc<Indenter>,
+        clock: Clock,
+        opts: SimRigOptions,
+    ) -> io::Result<SimRig> {
+        let frame = config.sensor.surface_frame;
+        let home = opts.home_pose.unwrap_or_else(|| {
+            pose_above_surface(&frame, 0.0, 0.0, config.plan.approach_height_mm)
+        });
+        let ur_cfg = Ur5eConfig {
+            home_pose: home,
+            initial_robot_mode: opts.initial_robot_mode,
+            max_frequency_hz: config.robot.controller.max_rtde_frequency_hz(),
+            ..Ur5eConfig::default()
+        };
+        let runtime_pacer = AbortOnDrop(Some(rig_core::clock::spawn_runtime_pacer(
+            &clock,
+            rig_core::clock::SIM_PACER_LEAD,
+        )));
+        let ur5e = Arc::new(Ur5e::start(ur_cfg, clock.clone()).await?);
+
+        let physics = ContactPhysics::new(
+            frame,
+            config.elastomer.clone(),
+            indenter,
+            opts.physics.clone(),
+            opts.camera.is_some(),
+        )?;
+        // The state at start, so the F/T and the camera have a sample from t = start.
+        let s = ur5e.snapshot();
+        if let Err(e) = physics.update(s.t_ns, &s.actual_tcp_pose) {
+            tracing::warn!("contact physics at start: {e}");
+        }
+        let src = ur5e.clone();
+        let physics_task = AbortOnDrop(Some(physics.spawn(
+            clock.clone(),
+            // The pose at the current clock time (due controller ticks processed first), so
+            // an on-demand step sees the contact at the caller's time.
+            Arc::new(move || {
+                let s = src.snapshot_now();
+                (s.t_ns, s.actual_tcp_pose)
+            }),
+        )));
+
+        let fs = config.force_sensor.as_ref();
+        let mut model = SensorModel::nano17(opts.netft_seed);
+        if let Some(fs) = fs {
+            let r = fs.tool_rotation_deg.map(f64::to_radians);
+            model.tool = ToolTransform::from_angles(fs.tool_offset_mm, r)
+                .map_err(|e| invalid(format!("force_sensor tool transform: {e}")))?;
+        }
+        let rate_hz = opts
+            .netft_rate_hz
+            .or(fs.map(|f| f.rate_hz))
+            .unwrap_or(rig_core::ft::DEFAULT_RATE_HZ);
+        let source: SharedWrenchSource = Arc::new(physics.clone());
+        let ft = match opts.ft_front_end {
+            SimFtFrontEnd::NetFt => {
+                let nf_cfg = NetFtMockConfig {
+                    rate_hz,
+                    counts_per_force: fs
+                        .and_then(|f| f.counts_per_force)
+                        .unwrap_or(netft::FACTORY_COUNTS_PER_FORCE),
+                    counts_per_torque: fs
+                        .and_then(|f| f.counts_per_torque)
+                        .unwrap_or(netft::FACTORY_COUNTS_PER_TORQUE),
+                    seed: opts.netft_seed,
+                    ..NetFtMockConfig::default()
+                };
+                SimFt::NetFt(NetFtMock::start(nf_cfg, model, source, clock.clone()).await?)
+            }
+            SimFtFrontEnd::Serial => {
+                let cfg = SerialMockConfig {
+                    rate_hz,
+                    seed: opts.netft_seed,
+                    ..SerialMockConfig::default()
+                };
+                SimFt::Serial(SerialControllerMock::start(
+                    cfg,
+                    model,
+                    source,
+                    clock.clone(),
+                )?)
+            }
+        };
+
+        let camera = match &opts.camera {
+            Some(cam_cfg) => {
+                let renderer = PhysicsRenderer::new(
+                    physics.clone(),
+                    config.optics.clone().unwrap_or_default(),
+                    opts.image_effects,
+                    opts.image_seed,
+                );
+                Some(
+                    SimCamera::spawn(clock.clone(), cam_cfg.clone(), Arc::new(renderer))
+                        .map_err(|e| invalid(format!("simulated camera: {e}")))?,
+                )
+            }
+            None => None,
+        };
+        tracing::info!(
+            rtde = %ur5e.rtde_addr(),
+            ft = %match &ft {
+                SimFt::NetFt(m) => format!("Net F/T {}", m.addr()),
+                SimFt::Serial(m) => format!("serial {}", m.path().display()),
+            },
+            camera = camera.is_some(),
+            "simulated rig started"
+        );
+        Ok(SimRig {
+            _runtime_pacer: runtime_pacer,
+            ur5e,
+            physics,
+            physics_task,
+            ft,
+            camera,
+        })
+    }
+
+    /// The simulated UR5e (its RTDE, dashboard and script addresses, faults, snapshot).
+    pub fn ur5e(&self) -> &Ur5e {
+        &self.ur5e
+    }
+
+    pub fn physics(&self) -> &ContactPhysics {
+        &self.physics
+    }
+
+    /// The Net F/T mock's UDP address (`None` with a serial front end).
+    pub fn netft_addr(&self) -> Option<SocketAddr> {
+        match &self.ft {
+            SimFt::NetFt(m) => Some(m.addr()),
+            SimFt::Serial(_) => None,
+        }
+    }
+
+    /// The serial F/T controller's pty (`None` with a Net F/T front end).
+    pub fn ft_serial_path(&self) -> Option<&std::path::Path> {
+        match &self.ft {
+            SimFt::Serial(m) => Some(m.path()),
+            SimFt::NetFt(_) => None,
+        }
+    }
+
+    /// The simulated F/T front end (faults, counters).
+    pub fn ft(&self) -> &SimFt {
+        &self.ft
+    }
+
+    /// The UR5e, shareable (for fault injection from another task).
+    pub fn ur5e_arc(&self) -> Arc<Ur5e> {
+        self.ur5e.clone()
+    }
+
+    /// The simulated camera, when one was asked for.
+    pub fn camera(&mut self) -> Option<&mut SimCamera> {
+        self.camera.as_mut()
+    }
+
+    /// Takes the camera out (to hand it to a frame reader).
+    pub fn take_camera(&mut self) -> Option<SimCamera> {
+        self.camera.take()
+    }
+
+    /// Stops every task and closes every socket.
+    pub async fn shutdown(self) {
+        let SimRig {
+            _runtime_pacer,
+            ur5e,
+            physics: _,
+            physics_task,
+            ft,
+            camera,
+        } = self;
+        _runtime_pacer.stop().await;
+        drop(camera);
+        ft.shutdown().await;
+        physics_task.stop().await;
+        match Arc::try_unwrap(ur5e) {
+            Ok(ur) => ur.shutdown().await,
+            Err(ur) => drop(ur),
+        }
+    }
+}
+
+/// Aborts its task when dropped.
+struct AbortOnDrop(Option<JoinHandle<()>>);
+
+impl AbortOnDrop {
+    async fn stop(mut self) {
+        if let Some(t) = self.0.take() {
+            t.abort();
+            let _ = t.await;
+        }
+    }
+}
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        if let Some(t) = &self.0 {
+            t.abort();
+        }
+    }
+}
