@@ -150,11 +150,22 @@ pub enum Message {
 pub fn messages(
     bytes: &[u8],
 ) -> Result<impl Iterator<Item = Result<Message, String>> + '_, String> {
+    messages_on(bytes, |_| true)
+}
+
+/// [`messages`] on the topics `keep` accepts only: the others' records are still read (a
+/// corrupt record is an error) but their messages are not decoded.
+pub fn messages_on<'a>(
+    bytes: &'a [u8],
+    keep: impl Fn(&str) -> bool + 'a,
+) -> Result<impl Iterator<Item = Result<Message, String>> + 'a, String> {
     let stream =
         mcap::read::MessageStream::new(bytes).map_err(|e| format!("unreadable MCAP: {e}"))?;
-    Ok(stream.map(|msg| {
-        let msg = msg.map_err(|e| format!("corrupt MCAP record: {e}"))?;
-        decode(&msg.channel.topic, &msg.data, msg.log_time)
+    Ok(stream.filter_map(move |msg| match msg {
+        Err(e) => Some(Err(format!("corrupt MCAP record: {e}"))),
+        Ok(msg) => {
+            keep(&msg.channel.topic).then(|| decode(&msg.channel.topic, &msg.data, msg.log_time))
+        }
     }))
 }
 

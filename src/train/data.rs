@@ -18,6 +18,7 @@ use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
 use super::modality::{MarkerParams, Modality};
+use crate::record::channels::{TOPIC_IMAGE, TOPIC_PAIRED};
 use crate::record::manifest::{Manifest, Status};
 use crate::record::reader::{self, Message};
 
@@ -448,7 +449,9 @@ fn load_trajectory(
     let bytes = fs::read(path)?;
     let mut images: Vec<(i64, Vec<u8>)> = Vec::new();
     let mut paired: BTreeMap<i64, [f32; 3]> = BTreeMap::new();
-    for msg in reader::messages(&bytes).map_err(anyhow::Error::msg)? {
+    // Only the frames and their paired forces are decoded.
+    let wanted = |topic: &str| topic == TOPIC_IMAGE || topic == TOPIC_PAIRED;
+    for msg in reader::messages_on(&bytes, wanted).map_err(anyhow::Error::msg)? {
         match msg.map_err(anyhow::Error::msg)? {
             Message::Frame { seq, png } => images.push((seq, png)),
             Message::Paired(m) => {
