@@ -69,3 +69,19 @@ pub async fn drain_until_quiet(
         clock.sleep(std::time::Duration::from_millis(50)).await;
     }
 }
+
+/// The stream's next sample; panics (with the stream's counters and error) when none comes
+/// within 10 s of clock time. The limit catches a dead stream, not a slow host: a loaded CI
+/// machine has starved a reader for over a second of real time.
+pub async fn next_sample(
+    clock: &rig_core::clock::Clock,
+    stream: &mut rig::force::FtStream,
+) -> rig::force::WrenchSample {
+    match clock
+        .timeout(std::time::Duration::from_secs(10), stream.next())
+        .await
+    {
+        Ok(Some(s)) => s,
+        _ => panic!("stream stalled: {:?} {:?}", stream.stats(), stream.error()),
+    }
+}
