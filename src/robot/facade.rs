@@ -461,6 +461,11 @@ impl Robot {
         log: &mut MovesLog,
     ) -> Result<MoveReport, MotionError> {
         self.ensure_ready(&m.label).await?;
+        // States queued before the command is written describe the past (a program restart in
+        // `ensure_ready` leaves STOPPED states behind). The sequencer skips states stamped
+        // before the issue time, but while simulated time holds a stale state and the issue
+        // can carry the same stamp, so the queue is emptied here instead.
+        *samples = samples.resubscribe();
         let mut link = self.rtde.link();
         let mut generation = match &*link.borrow_and_update() {
             LinkStatus::Up { generation, .. } => *generation,
@@ -492,6 +497,9 @@ impl Robot {
                 need_resume = false;
                 if self.resume_after_link_loss(&m.label).await? {
                     reissued += 1;
+                    // The STOPPED states of the reconnection are still queued: drop them, as
+                    // before the first issue.
+                    *samples = samples.resubscribe();
                 }
                 generation = match &*link.borrow_and_update() {
                     LinkStatus::Up { generation, .. } => *generation,
