@@ -187,6 +187,7 @@ pub async fn run(
     summary.not_attempted = todo.len() - attempted;
     summary.clock_time_s = (clock.now_ns() - t0) as f64 * 1e-9;
     summary.clock_holds = clock.hold_stats();
+    summary.image_lag_max_ms = sim.as_ref().map(|s| s.image_lag_max_ms());
     pipeline.count_into(&mut summary, &rec);
 
     // Orderly shutdown: streams, collector, recorder (every queued record written), rig.

@@ -51,6 +51,9 @@ pub struct RunSummary {
     /// Simulated rig only: how often, and how long in real time, simulated time held for a
     /// simulated device or the runtime that fell behind (a stalled or busy host).
     pub clock_holds: rig_core::clock::HoldStats,
+    /// Simulated rig only: the largest gap between a frame's capture time and the time of the
+    /// contact the simulated camera drew in it, ms.
+    pub image_lag_max_ms: Option<f64>,
     /// Times a stream or the collector waited for the writer (slow disk).
     pub backpressure_waits: u64,
     /// Frames received from the camera in the whole run (recorded or not).
@@ -58,6 +61,11 @@ pub struct RunSummary {
     /// Frames the camera's sequence numbers say were lost in the whole run.
     pub frames_lost: u64,
 }
+
+/// A simulated frame shows the contact of the newest physics step at or before its capture
+/// time: steps are one physics period apart (4 ms at the default 250 Hz) at the poses of the
+/// controller's ticks (2 ms). More lag than this means the physics fell behind.
+const SIM_IMAGE_LAG_WARN_MS: f64 = 10.0;
 
 pub(super) fn progress_message(s: &TrajStats, c: &streams::StreamCounters) -> String {
     let fps = match (s.first_frame_ns, s.last_frame_ns) {
@@ -178,6 +186,11 @@ impl RunSummary {
                 h.holds,
                 h.held_s,
                 h.last_holder.unwrap_or("a device")
+            ));
+        }
+        if let Some(lag) = self.image_lag_max_ms.filter(|l| *l > SIM_IMAGE_LAG_WARN_MS) {
+            s.push_str(&format!(
+                "simulated images: contact drawn up to {lag:.1} ms before a frame's capture time (the contact physics fell behind)\n"
             ));
         }
         if self.backpressure_waits > 0 {

@@ -115,6 +115,12 @@ impl RunningSimRig {
         tokio::spawn(faults::inject_faults(faults, targets, clock, stages))
     }
 
+    /// The largest gap between a simulated frame's capture time and the time of the contact
+    /// it shows, ms (see `PhysicsStats::max_field_age_ns`).
+    pub fn image_lag_max_ms(&self) -> f64 {
+        self.rig.physics().stats().max_field_age_ns as f64 * 1e-6
+    }
+
     pub async fn shutdown(self) {
         self.rig.shutdown().await;
     }

@@ -2,7 +2,7 @@
 //! gauge stream on a pty.
 //!
 //! All three sample a [`WrenchSource`] (the true wrench at the tool point, N and N·mm) on the
-//! shared [`Clock`] at their configured rate, and push it through the same [`SensorModel`]:
+//! shared [`Clock`](rig_core::clock::Clock) at their configured rate, and push it through the same [`SensorModel`]:
 //!
 //! 1. the tool transform's inverse: tool-point wrench → sensor-frame wrench;
 //! 2. noise at the sensor's resolution (Gaussian, σ = one resolution step per axis:

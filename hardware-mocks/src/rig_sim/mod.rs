@@ -51,9 +51,15 @@
 //!
 //! # Timing limits
 //!
-//! The wrench at a time later than the newest physics step is the newest one (held, not
-//! extrapolated): an F/T sample lags the pose by at most one physics period plus one controller
-//! tick. The camera renders the newest field at its capture time, with the same lag.
+//! With [`PhysicsConfig::on_demand`] (the cheap models `rig run` uses), an F/T sample or a
+//! frame asked for at a time past the newest physics step first steps the physics, one period
+//! apart, through the poses the controller had up to that time ([`Ur5e::tcp_pose_at`]), and the
+//! physics task replays ticks it woke too late for. A sample or frame thus shows the contact of
+//! the controller tick at or before its own time however late its task ran on a busy host
+//! ([`PhysicsStats::max_field_age_ns`] says how stale the images were). Without it (the costly
+//! models), the wrench past the newest step is the newest one (held, not extrapolated): a sample
+//! lags the pose by at most one physics period plus one controller tick while the task keeps up,
+//! and the camera renders the newest field at or before its capture time, with the same lag.
 
 mod physics;
 
@@ -238,11 +244,13 @@ impl SimRig {
         let src = ur5e.clone();
         let physics_task = AbortOnDrop(Some(physics.spawn(
             clock.clone(),
-            // The pose at the current clock time (due controller ticks processed first), so
-            // an on-demand step sees the contact at the caller's time.
-            Arc::new(move || {
-                let s = src.snapshot_now();
-                (s.t_ns, s.actual_tcp_pose)
+            // The pose the controller had at the time asked for (due ticks processed first),
+            // so a step, on time or late, sees the contact of its own instant.
+            Arc::new(move |t_ns| {
+                src.tcp_pose_at(t_ns).unwrap_or_else(|| {
+                    let s = src.snapshot_now();
+                    (s.t_ns, s.actual_tcp_pose)
+                })
             }),
         )));
 

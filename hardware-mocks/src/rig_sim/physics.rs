@@ -105,8 +105,14 @@ pub struct PhysicsStats {
     /// Steps the simulator refused (the last wrench was held).
     pub errors: u64,
     /// Physics ticks of the spawned task skipped because steps took longer than the period
-    /// (the buffer is then sparser than `rate_hz`; `wrench_at` still interpolates).
+    /// (the buffer is then sparser than `rate_hz`; `wrench_at` still interpolates). With
+    /// [`PhysicsConfig::on_demand`] (cheap models) missed ticks are replayed at their own
+    /// times and poses instead, up to a second of clock time at once.
     pub skipped_ticks: u64,
+    /// The largest gap between a [`ContactPhysics::field_at`] time (a frame's capture time)
+    /// and the pose time of the field it got, ns: how stale the contact in a simulated image
+    /// was. A few ms (one controller tick plus the field spacing) when the physics keeps up.
+    pub max_field_age_ns: u64,
 }
 
 /// The TCP (indenter tip) in the sensor surface frame, as the simulator's pose: contact point
@@ -170,6 +176,7 @@ struct Inner {
     contact_steps: AtomicU64,
     errors: AtomicU64,
     skipped_ticks: AtomicU64,
+    max_field_age_ns: AtomicU64,
     /// The pose source of [`ContactPhysics::spawn`], for on-demand steps.
     pose_source: Mutex<Option<PoseSource>>,
 }
@@ -190,8 +197,10 @@ impl std::fmt::Debug for ContactPhysics {
     }
 }
 
-/// Where the physics task reads the TCP: `(t_ns of the pose, TCP pose in the base frame)`.
-pub type PoseSource = Arc<dyn Fn() -> (u64, Pose) + Send + Sync>;
+/// Where the physics reads the TCP: called with a clock time, it gives the TCP pose (base
+/// frame) the robot had at that time, with the time of that pose (at or before it: the
+/// controller's last tick). The time asked for is never in the future.
+pub type PoseSource = Arc<dyn Fn(u64) -> (u64, Pose) + Send + Sync>;
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
@@ -230,6 +239,7 @@ impl ContactPhysics {
                 contact_steps: AtomicU64::new(0),
                 errors: AtomicU64::new(0),
                 skipped_ticks: AtomicU64::new(0),
+                max_field_age_ns: AtomicU64::new(0),
                 pose_source: Mutex::new(None),
             }),
         })
@@ -330,20 +340,35 @@ impl ContactPhysics {
         lock(&self.inner.results).fields.back().cloned()
     }
 
-    /// With [`PhysicsConfig::on_demand`]: a step to the pose source's current pose when the
-    /// newest step is older than `t_ns`.
+    /// With [`PhysicsConfig::on_demand`]: when the newest step is older than `t_ns`, steps at
+    /// the poses the robot had from the newest step up to `t_ns`, one physics period apart
+    /// (at most a second of them), and then at `t_ns`. A consumer that is on time (the F/T at
+    /// 1 kHz) thus never leaves a gap in the buffer while the physics task is late, and a
+    /// consumer running late (a frame rendered after its capture time) finds the contact of
+    /// its own instant.
     fn catch_up(&self, t_ns: u64) {
         if !self.inner.config.on_demand {
             return;
         }
-        if self.latest().is_some_and(|(t, _)| t >= t_ns) {
+        let newest = self.latest().map(|(t, _)| t);
+        if newest.is_some_and(|t| t >= t_ns) {
             return;
         }
         let src = lock(&self.inner.pose_source).clone();
-        if let Some(src) = src {
-            let (t, tcp) = src();
-            if let Err(e) = self.update(t, &tcp) {
-                tracing::debug!("contact physics on demand at {t} ns: {e}");
+        let Some(src) = src else {
+            return;
+        };
+        let period_ns = (1e9 / self.inner.config.rate_hz).max(1.0) as u64;
+        let mut times = Vec::new();
+        if let Some(t_last) = newest {
+            let from = (t_last + period_ns).max(t_ns.saturating_sub(1_000_000_000));
+            times.extend((from..t_ns).step_by(period_ns as usize));
+        }
+        times.push(t_ns);
+        for t in times {
+            let (t_pose, tcp) = src(t);
+            if let Err(e) = self.update(t_pose, &tcp) {
+                tracing::debug!("contact physics on demand at {t_pose} ns: {e}");
             }
         }
     }
@@ -354,7 +379,13 @@ impl ContactPhysics {
         self.catch_up(t_ns);
         let res = lock(&self.inner.results);
         let i = res.fields.partition_point(|(t, _)| *t <= t_ns);
-        res.fields.get(i.saturating_sub(1)).cloned()
+        let found = res.fields.get(i.saturating_sub(1)).cloned();
+        if let Some((t, _)) = &found {
+            self.inner
+                .max_field_age_ns
+                .fetch_max(t_ns.saturating_sub(*t), Ordering::Relaxed);
+        }
+        found
     }
 
     /// The newest `(t_ns, wrench)` sample.
@@ -368,41 +399,60 @@ impl ContactPhysics {
             contact_steps: self.inner.contact_steps.load(Ordering::Relaxed),
             errors: self.inner.errors.load(Ordering::Relaxed),
             skipped_ticks: self.inner.skipped_ticks.load(Ordering::Relaxed),
+            max_field_age_ns: self.inner.max_field_age_ns.load(Ordering::Relaxed),
         }
     }
 
-    /// Spawns the physics task on `clock`: every `1 / rate_hz` of clock time it reads
-    /// `pose_source` and runs [`ContactPhysics::update`] (off the async workers). Missed ticks
-    /// are skipped, not replayed. Must be called within a tokio runtime.
+    /// Spawns the physics task on `clock`: every `1 / rate_hz` of clock time it steps
+    /// [`ContactPhysics::update`] (off the async workers) at the pose `pose_source` gives for
+    /// the tick's time. When the task wakes late, the ticks it missed are replayed at their
+    /// own times and poses if the model is cheap ([`PhysicsConfig::on_demand`]; at most a
+    /// second of clock time at once), so the buffer and the fields do not depend on how busy
+    /// the host was; for the costly models they are skipped and counted
+    /// ([`PhysicsStats::skipped_ticks`]). Must be called within a tokio runtime.
     pub fn spawn(&self, clock: Clock, pose_source: PoseSource) -> JoinHandle<()> {
         *lock(&self.inner.pose_source) = Some(pose_source.clone());
         let physics = self.clone();
         let period = Duration::from_secs_f64(1.0 / self.inner.config.rate_hz);
+        let replay = self.inner.config.on_demand;
+        let max_replay = self.inner.config.rate_hz.ceil().max(1.0) as u64;
         tokio::spawn(async move {
             let mut ticker = clock.ticker(period);
-            let mut prev_due: Option<u64> = None;
+            let period_ns = ticker.period_ns().max(1);
+            let mut last_step: Option<u64> = None;
             loop {
                 let due = ticker.tick().await;
-                if let Some(p) = prev_due {
-                    let missed = (due - p) / ticker.period_ns().max(1);
-                    if missed > 1 {
-                        physics
-                            .inner
-                            .skipped_ticks
-                            .fetch_add(missed - 1, Ordering::Relaxed);
-                    }
+                // Every tick time from the one after the last step up to now: a late wake-up
+                // returns the first missed tick and the ticker skips the rest.
+                let first = last_step.map_or(due, |p| p + period_ns).min(due);
+                let late = (clock.now_ns().max(first) - first) / period_ns;
+                let newest = first + late * period_ns;
+                last_step = Some(newest);
+                let replayed = if replay { late.min(max_replay) } else { 0 };
+                if late > replayed {
+                    physics
+                        .inner
+                        .skipped_ticks
+                        .fetch_add(late - replayed, Ordering::Relaxed);
                 }
-                prev_due = Some(due);
-                let (t_ns, tcp) = pose_source();
+                let times: Vec<u64> = (0..=replayed)
+                    .rev()
+                    .map(|k| newest - k * period_ns)
+                    .collect();
                 let p = physics.clone();
-                let r = tokio::task::spawn_blocking(move || p.update(t_ns, &tcp)).await;
-                match r {
-                    Ok(Ok(_)) => {}
-                    Ok(Err(e)) => tracing::warn!("contact physics step at {t_ns} ns: {e}"),
-                    Err(e) => {
-                        tracing::error!("contact physics step panicked: {e}");
-                        return;
+                let src = pose_source.clone();
+                let r = tokio::task::spawn_blocking(move || {
+                    for t in times {
+                        let (t_ns, tcp) = src(t);
+                        if let Err(e) = p.update(t_ns, &tcp) {
+                            tracing::warn!("contact physics step at {t_ns} ns: {e}");
+                        }
                     }
+                })
+                .await;
+                if let Err(e) = r {
+                    tracing::error!("contact physics step panicked: {e}");
+                    return;
                 }
             }
         })

@@ -91,6 +91,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use rig_core::clock::{Clock, ClockHandle};
+use rig_core::pose::Pose;
 use tokio::net::TcpListener;
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
@@ -161,6 +162,9 @@ impl Ur5e {
             t0_ns: t0,
             next_tick_ns: Mutex::new(t0 + tick_period_ns),
             tick_period_ns,
+            poses: Mutex::new(std::collections::VecDeque::with_capacity(
+                shared::POSE_HISTORY,
+            )),
         });
         let tasks = vec![
             tokio::spawn(run_controller(shared.clone())),
@@ -202,6 +206,19 @@ impl Ur5e {
     pub fn snapshot_now(&self) -> ControllerSnapshot {
         self.shared.process_due_ticks(self.shared.clock.now_ns());
         self.snapshot()
+    }
+
+    /// The TCP pose the controller had at clock time `t_ns`, from its last tick at or before
+    /// it, with that tick's time. Ticks due now are processed first, as in
+    /// [`Self::snapshot_now`], so a consumer running late (a camera rendering a frame after
+    /// its capture time) still sees the pose of its own instant, not the pose of when it got
+    /// round to asking. A time before the kept history (2 s) gives its oldest tick; `None`
+    /// before the first tick.
+    pub fn tcp_pose_at(&self, t_ns: u64) -> Option<(u64, Pose)> {
+        self.shared.process_due_ticks(self.shared.clock.now_ns());
+        let poses = self.shared.poses.lock().unwrap_or_else(|p| p.into_inner());
+        let i = poses.partition_point(|(t, _)| *t <= t_ns);
+        poses.get(i.saturating_sub(1)).copied()
     }
 
     /// The fault injector.

@@ -1,12 +1,14 @@
 //! What the controller task, the three servers and the handles share ([`Shared`]), and the
 //! accept loop every server runs.
 
+use std::collections::VecDeque;
 use std::net::SocketAddr;
 use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use rig_core::clock::Clock;
+use rig_core::pose::Pose;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{broadcast, watch};
 
@@ -40,7 +42,13 @@ pub(super) struct Shared {
     /// Clock time of the next tick to process; held while ticks are processed, so the
     /// controller task and [`Ur5e::snapshot_now`] never process one tick twice or out of order.
     pub(super) next_tick_ns: Mutex<u64>,
+    /// The TCP pose of each of the last [`POSE_HISTORY`] ticks, oldest first, for
+    /// [`Ur5e::tcp_pose_at`](super::Ur5e::tcp_pose_at).
+    pub(super) poses: Mutex<VecDeque<(u64, Pose)>>,
 }
+
+/// Ticks of TCP pose history kept: 2 s at 500 Hz, far more than any simulated device lags.
+pub(super) const POSE_HISTORY: usize = 1000;
 
 impl Shared {
     /// Process every tick due at clock time `now`, in order, broadcasting each snapshot.
@@ -50,6 +58,13 @@ impl Shared {
             let t_ns = *next;
             *next += self.tick_period_ns;
             let snap = Arc::new(self.lock().tick(t_ns));
+            {
+                let mut poses = self.poses.lock().unwrap_or_else(|p| p.into_inner());
+                if poses.len() == POSE_HISTORY {
+                    poses.pop_front();
+                }
+                poses.push_back((t_ns, snap.actual_tcp_pose));
+            }
             // No receivers is fine: nobody streams yet.
             let _ = self.samples.send(snap);
             self.ticks_done.send_replace(t_ns);

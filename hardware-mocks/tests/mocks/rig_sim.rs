@@ -295,10 +295,12 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     let _client = movel(rig.ur5e(), 1, target, 0.01, 0.1).await;
     let mut ticks = 0;
     let mut fz_prev = 0.0;
+    let mut path = Vec::new();
     loop {
         rig.ur5e().step_ticks(&h, 1).await;
         ticks += 1;
         let s = rig.ur5e().snapshot();
+        path.push((s.t_ns, s.actual_tcp_pose));
         if ticks % 10 == 0 {
             physics_reaches(rig.physics(), s.t_ns).await;
             let fz = rig.physics().wrench_at(s.t_ns - 4_000_000).force_n[2];
@@ -315,6 +317,12 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     }
     let depth = indenter_pose(&frame, &rig.ur5e().snapshot().actual_tcp_pose).depth_mm;
     assert!((depth - DEPTH_MM).abs() < 1e-9, "{depth}");
+    // The pose history the physics steps a late consumer with: the pose of the tick at or
+    // before the time asked for.
+    for &(t, pose) in path.iter().step_by(25) {
+        assert_eq!(rig.ur5e().tcp_pose_at(t), Some((t, pose)));
+        assert_eq!(rig.ur5e().tcp_pose_at(t + 1_000_000), Some((t, pose)));
+    }
 
     // At rest 0.5 mm deep: settle 40 ms, then read 0.2 s. The F/T reads the newest physics
     // step at each sample's time, so let the physics reach the rest pose first: on a busy
@@ -454,4 +462,87 @@ fn field_at_gives_the_field_of_the_capture_time_not_the_newest() {
     );
     // Before the first field: the oldest one.
     assert!((depth_of(1) - 0.2).abs() < 0.02);
+}
+
+/// A host that stalls must not change what the simulated sensors saw. The physics task is held
+/// off (a manual clock that jumps, a runtime that does not run it) while an on-time consumer
+/// (the F/T) asks for the newest contact and a late one (the camera) asks for an older instant:
+/// the late one must still get the contact of its own instant, within one physics period of
+/// motion, not the contact from before the stall. Then the task itself wakes 140 ms late and
+/// must replay the ticks it missed at their own poses instead of skipping them.
+#[tokio::test]
+async fn a_stalled_physics_task_leaves_no_gap_and_late_frames_see_their_own_instant() {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    let physics = ContactPhysics::new(
+        frame,
+        cfg.elastomer.clone(),
+        sphere(),
+        PhysicsConfig {
+            contact: sim::ContactModel::Winkler,
+            on_demand: true,
+            ..PhysicsConfig::default()
+        },
+        true,
+    )
+    .unwrap();
+    // Pressing straight down at 4 µm per ms of clock time: 0.8 mm at 200 ms.
+    const MM_PER_MS: f64 = 0.004;
+    let depth_at = |t_ns: u64| MM_PER_MS * t_ns as f64 * 1e-6;
+    let pose_at = move |t_ns: u64| pose_above_surface(&frame, 0.0, 0.0, -depth_at(t_ns));
+    let (clock, handle) = Clock::manual();
+    physics.update(0, &pose_at(0)).unwrap();
+    let _task = physics.spawn(clock.clone(), Arc::new(move |t| (t, pose_at(t))));
+    tokio::task::yield_now().await; // the task starts its ticker at 0
+    let period_ms = 1e3 / PhysicsConfig::default().rate_hz;
+    // One physics period of motion, plus the Winkler field's own error (see the test above).
+    let tol_mm = MM_PER_MS * period_ms + 0.02;
+    let field_depth = |t_ns: u64| {
+        let (_, f) = physics.field_at(t_ns).expect("a field");
+        -f.uz_mm.iter().copied().fold(0.0, f64::min)
+    };
+
+    // The stall: 60 ms pass and the task does not run (this runtime is not yielded to).
+    handle.advance(Duration::from_millis(60));
+    let _ = physics.wrench_at(60_000_000); // the on-time F/T sample
+    for t_ms in [10u64, 30, 50] {
+        let got = field_depth(t_ms * 1_000_000);
+        let want = depth_at(t_ms * 1_000_000);
+        assert!(
+            (got - want).abs() <= tol_mm,
+            "frame at {t_ms} ms shows {got:.3} mm deep, the indenter was at {want:.3} mm"
+        );
+    }
+    let age_ms = physics.stats().max_field_age_ns as f64 * 1e-6;
+    assert!(
+        age_ms <= period_ms,
+        "field {age_ms} ms older than the frame"
+    );
+
+    // The task wakes late: every tick it missed is stepped, none skipped.
+    handle.advance(Duration::from_millis(140));
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while physics.latest().map_or(0, |(t, _)| t) < 200_000_000 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the physics task did not catch up"
+        );
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    let s = physics.stats();
+    assert_eq!(s.skipped_ticks, 0, "{s:?}");
+    // 60 ms on demand (one step per 4 ms period, 0 included) and 140 ms replayed.
+    let want_steps = (200.0 / period_ms) as u64 + 1;
+    assert!(
+        s.steps >= want_steps,
+        "{s:?}, want at least {want_steps} steps"
+    );
+    for t_ms in [70u64, 130, 190] {
+        let got = field_depth(t_ms * 1_000_000);
+        let want = depth_at(t_ms * 1_000_000);
+        assert!(
+            (got - want).abs() <= tol_mm,
+            "frame at {t_ms} ms shows {got:.3} mm deep, the indenter was at {want:.3} mm"
+        );
+    }
 }
