@@ -159,6 +159,8 @@ impl CycleGan {
                 t: Discriminator::new(&cfg.shape, &adev),
                 s: Discriminator::new(&cfg.shape, &adev),
             };
+            super::force::init_params(&gens);
+            super::force::init_params(&discs);
             (gens, discs, adev)
         });
         Self {

@@ -5,10 +5,10 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use burn::module::Module;
+use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig};
 use burn::store::{BurnpackStore, ModuleSnapshot, SafetensorsStore};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use super::batch::{Rng, Sequence, images_to_tensor, sample_sequences};
@@ -170,9 +170,12 @@ pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
 
 /// Builds networks under one process-wide lock, seeding the device's generator first when a
 /// seed is given. burn keeps one random generator per device for the whole process and draws
-/// from it when a network is built (training itself draws nothing from it): built this way, a
-/// network's initial weights depend on its seed alone even while other trainings run in other
-/// threads (`rig demo` trains several side by side).
+/// from it when a parameter is initialised (training itself draws nothing from it). burn
+/// initialises parameters lazily, at their first use, so `build` must call [`init_params`] on
+/// every network it makes: then a network's initial weights depend on its seed alone even while
+/// other trainings run in other threads (`rig demo` trains two side by side). Without it they
+/// were drawn at the first forward pass, outside the lock, interleaved with the other
+/// training's draws, and the same data and seed gave different models run to run.
 pub fn build_networks<T>(dev: &Device, seed: Option<u64>, build: impl FnOnce() -> T) -> T {
     static BUILD: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _g = BUILD.lock().unwrap_or_else(|p| p.into_inner());
@@ -180,6 +183,34 @@ pub fn build_networks<T>(dev: &Device, seed: Option<u64>, build: impl FnOnce() -
         dev.seed(seed);
     }
     build()
+}
+
+/// Draws every parameter of `net` now (burn defers that to its first use): see
+/// [`build_networks`].
+pub fn init_params<M: Module>(net: &M) {
+    struct Touch;
+    impl ModuleVisitor for Touch {
+        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+            let _ = p.val();
+        }
+        fn visit_int<const D: usize>(&mut self, p: &Param<Tensor<D, Int>>) {
+            let _ = p.val();
+        }
+        fn visit_bool<const D: usize>(&mut self, p: &Param<Tensor<D, Bool>>) {
+            let _ = p.val();
+        }
+    }
+    net.visit(&mut Touch);
+}
+
+/// The network a training starts from, on `dev` with autodiff: its weights from `seed` alone.
+fn initial_network(shape: &ForceShape, dev: &Device, seed: u64) -> (Device, ForceNet) {
+    build_networks(dev, Some(seed), || {
+        let adev = dev.clone().autodiff();
+        let net = ForceNet::new(shape, &adev);
+        init_params(&net);
+        (adev, net)
+    })
 }
 
 /// The device the trainer computes on: CUDA with the `gpu` feature, else the flex CPU backend.
@@ -265,11 +296,7 @@ pub fn train(
     fs::create_dir_all(out)?;
     let dev = device();
     let shape = shape_for(cfg, &spec);
-    let (adev, mut net) = build_networks(&dev, Some(cfg.seed), || {
-        let adev = dev.clone().autodiff();
-        let net = ForceNet::new(&shape, &adev);
-        (adev, net)
-    });
+    let (adev, mut net) = initial_network(&shape, &dev, cfg.seed);
     let mut optim: ModuleOptimizer = match cfg.optimizer {
         Optimizer::Adam => AdamConfig::new().init(),
         Optimizer::Sgd => SgdConfig::new().init(),
@@ -536,5 +563,49 @@ mod tests {
             ..cfg
         };
         assert!((0..4).all(|e| flat.lr_at(e) == 1e-2));
+    }
+
+    fn weights(net: &ForceNet) -> Vec<f32> {
+        struct Collect(Vec<f32>);
+        impl ModuleVisitor for Collect {
+            fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+                self.0
+                    .extend(p.val().into_data().try_to_vec::<f32>().unwrap());
+            }
+        }
+        let mut c = Collect(Vec::new());
+        net.visit(&mut c);
+        c.0
+    }
+
+    /// `rig demo` trains two networks side by side. A network's initial weights must be drawn
+    /// when it is built, under the build lock: if they were drawn at first use, another
+    /// training's draws in between (here: a second network built and used first) would change
+    /// them, and the same seed and data would give another model.
+    #[test]
+    fn initial_weights_depend_on_the_seed_alone_whatever_is_drawn_after_the_build() {
+        let spec = ImageSpec {
+            width: 32,
+            height: 24,
+            modality: crate::train::modality::Modality::RgbMarker,
+        };
+        let cfg = ForceConfig {
+            width: 4,
+            ..ForceConfig::default()
+        };
+        let shape = shape_for(&cfg, &spec);
+        let dev = device();
+        let (_, first) = initial_network(&shape, &dev, 7);
+        // Another training builds its network (another seed) and uses it in between.
+        let (_, other) = initial_network(&shape, &dev, 8);
+        let w_other = weights(&other);
+        let w_first = weights(&first);
+        let (_, again) = initial_network(&shape, &dev, 7);
+        assert_eq!(w_first.len(), w_other.len());
+        assert!(
+            w_first == weights(&again),
+            "seed 7 gave other weights the second time"
+        );
+        assert!(w_first != w_other, "seeds 7 and 8 gave the same weights");
     }
 }
