@@ -10,6 +10,11 @@ use super::collector::Tap;
 use crate::plan::{Plan, Trajectory};
 use crate::simrig::{self, PhysicsConfig, SimFault, SimFtFrontEnd};
 
+/// The fastest a simulated run's clock may be asked to run (`--speed-factor`): the rig's
+/// devices cannot keep up far beyond the default ×10, and the governor slows the clock to what
+/// they can, so more only risks overflowing clock arithmetic.
+pub const MAX_SPEED_FACTOR: f64 = 1000.0;
+
 /// Options of one run.
 #[derive(Clone)]
 pub struct RunOptions {
@@ -81,9 +86,14 @@ pub(super) fn planned<'p>(
         bail!("the plan has no trajectories to run (--limit 0?)");
     }
     let simulated = config.robot.simulated;
-    if simulated && !(opts.speed_factor.is_finite() && opts.speed_factor > 0.0) {
+    if simulated
+        && !(opts.speed_factor.is_finite()
+            && opts.speed_factor > 0.0
+            && opts.speed_factor <= MAX_SPEED_FACTOR)
+    {
         bail!(
-            "--speed-factor must be a positive number, got {}",
+            "--speed-factor must be a number above 0 and at most {MAX_SPEED_FACTOR}, got {} \
+             (the simulated rig cannot keep up far beyond the default 10; its clock slows down to what it can)",
             opts.speed_factor
         );
     }

@@ -38,6 +38,10 @@ pub enum SimFaultKind {
     CameraStall,
 }
 
+/// The longest delay after its stage's start a fault may be scheduled for, ms: an hour of
+/// clock time, far longer than any stage.
+pub const MAX_FAULT_DELAY_MS: f64 = 3_600_000.0;
+
 impl std::str::FromStr for SimFault {
     type Err = String;
     /// `KIND@TRAJECTORY/STAGE[+MS]`, e.g. `protective-stop@p0-d0.4-a030/shear+200`.
@@ -61,7 +65,16 @@ impl std::str::FromStr for SimFault {
                 ms.parse::<f64>()
                     .ok()
                     .filter(|v| v.is_finite() && *v >= 0.0)
-                    .ok_or_else(|| format!("{s:?}: bad delay {ms:?}: {usage}"))?,
+                    .ok_or_else(|| format!("{s:?}: bad delay {ms:?}: {usage}"))
+                    .and_then(|v| {
+                        if v <= MAX_FAULT_DELAY_MS {
+                            Ok(v)
+                        } else {
+                            Err(format!(
+                                "{s:?}: delay {ms} ms is longer than any stage; at most {MAX_FAULT_DELAY_MS} ms (an hour of clock time)"
+                            ))
+                        }
+                    })?,
             ),
             None => (stage_ms, 0.0),
         };

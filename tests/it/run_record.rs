@@ -299,3 +299,40 @@ fn the_default_output_is_named_after_indenter_and_sensor() {
     );
     assert_complete(&tmp.path().join("runs/cone-sim-source"), 1);
 }
+
+/// Absurd command-line values are refused with an error that names them, before anything
+/// starts, never with a panic (exit code 101).
+#[test]
+fn extreme_command_line_values_are_errors_not_panics() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config();
+    let run = |extra: &[&str]| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_rig"));
+        cmd.args(["run", "--indenter", "cone", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(tmp.path().join("never"))
+            .args(["--limit", "1"])
+            .args(extra);
+        cmd.output().unwrap()
+    };
+    for factor in ["1e308", "inf", "NaN", "0", "-1", "1001"] {
+        let out = run(&[&format!("--speed-factor={factor}")]);
+        let t = text(&out);
+        assert!(
+            matches!(out.status.code(), Some(1 | 2)),
+            "--speed-factor {factor}:\n{t}"
+        );
+        assert!(!t.contains("panicked"), "--speed-factor {factor}:\n{t}");
+        assert!(
+            t.contains("--speed-factor"),
+            "--speed-factor {factor}:\n{t}"
+        );
+        assert!(!t.contains("simulated UR5e on"), "started the rig:\n{t}");
+    }
+    let out = run(&["--sim-fault", "protective-stop@p0-d0.2-a000/down+1e300"]);
+    let t = text(&out);
+    assert_eq!(out.status.code(), Some(2), "{t}");
+    assert!(t.contains("at most 3600000 ms"), "{t}");
+    assert!(!tmp.path().join("never").exists());
+}

@@ -9,6 +9,12 @@ use crate::problem::Problem;
 /// that exhausts memory or runs for months.
 pub const MAX_TRAJECTORIES: usize = 100_000;
 
+/// The camera rates a config may ask for, frames per second: below one frame a second a
+/// trajectory has almost no frames (and the stream watchdogs count seconds); above 1000 no
+/// V4L2 tactile camera delivers.
+pub const MIN_FPS: f64 = 1.0;
+pub const MAX_FPS: f64 = 1000.0;
+
 impl RigConfig {
     /// Checks every value; returns all problems found, each naming its key path.
     ///
@@ -374,7 +380,15 @@ impl RigConfig {
             if cam.height_px == 0 {
                 v.push("camera.height_px", "must be positive");
             }
-            v.positive("camera.fps", cam.fps);
+            if v.positive("camera.fps", cam.fps) && !(MIN_FPS..=MAX_FPS).contains(&cam.fps) {
+                v.push(
+                    "camera.fps",
+                    format!(
+                        "{} is outside {MIN_FPS}..={MAX_FPS} frames per second (a GelSight Mini runs at 25)",
+                        cam.fps
+                    ),
+                );
+            }
         }
     }
 }

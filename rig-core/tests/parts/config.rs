@@ -251,6 +251,51 @@ fn speeds_are_limited() {
     assert_eq!(e.keys(), vec!["plan.up.speed_mm_s".to_string()], "{e}");
 }
 
+/// Extreme values are config errors naming their key, not panics or a run that stalls later.
+#[test]
+fn extreme_camera_rates_and_speeds_are_refused() {
+    for fps in ["1e-9", "0.5", "1e9", "0.0", "-25.0", "nan", "inf"] {
+        let e = error_of(&sim_with("fps = 25.0", &format!("fps = {fps}")));
+        assert_eq!(e.keys(), vec!["camera.fps".to_string()], "fps {fps}: {e}");
+    }
+    for (stage, speed) in [("down", "0.0"), ("down", "-1.0"), ("up", "-5.0")] {
+        let from = if stage == "down" {
+            "down = { speed_mm_s = 1.0"
+        } else {
+            "up = { speed_mm_s = 5.0"
+        };
+        let e = error_of(&sim_with(
+            from,
+            &format!("{stage} = {{ speed_mm_s = {speed}"),
+        ));
+        assert_eq!(
+            e.keys(),
+            vec![format!("plan.{stage}.speed_mm_s")],
+            "{stage} {speed}: {e}"
+        );
+    }
+}
+
+/// A hundred thousand contact points make a plan far past the limit: refused with the count.
+#[test]
+fn a_plan_of_a_hundred_thousand_points_is_refused() {
+    let points: Vec<String> = (0..100_000)
+        .map(|i| {
+            format!(
+                "[{:.3}, {:.3}]",
+                (i % 300) as f64 * 0.01 - 1.5,
+                (i / 300) as f64 * 0.01 - 1.5
+            )
+        })
+        .collect();
+    let text = sim_with(
+        "contact_points_mm = [[0.0, 0.0], [-3.0, -2.0], [3.0, -2.0], [-3.0, 2.0], [3.0, 2.0]]",
+        &format!("contact_points_mm = [{}]", points.join(", ")),
+    );
+    let e = error_of(&text);
+    assert!(e.to_string().contains("4800000 trajectories"), "{e}");
+}
+
 #[test]
 fn duplicate_and_out_of_range_directions() {
     let e = error_of(&sim_with("330.0]", "330.0, 30.0, 360.0]"));
