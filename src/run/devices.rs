@@ -40,6 +40,27 @@ fn calibration_json(settings: &FrontEndSettings, description: &str) -> serde_jso
     })
 }
 
+/// The calibration keys in which a recording's and the open F/T's calibration differ, the front
+/// end's description (its address) aside.
+fn calibration_differences(recorded: &serde_json::Value, now: &serde_json::Value) -> Vec<String> {
+    let (Some(a), Some(b)) = (recorded.as_object(), now.as_object()) else {
+        return if recorded == now {
+            Vec::new()
+        } else {
+            vec!["the whole calibration".into()]
+        };
+    };
+    let mut keys: Vec<String> = a
+        .keys()
+        .chain(b.keys())
+        .filter(|k| *k != "front_end" && a.get(*k) != b.get(*k))
+        .cloned()
+        .collect();
+    keys.sort_unstable();
+    keys.dedup();
+    keys
+}
+
 async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<Devices> {
     let fs = config.force_sensor.as_ref().context(
         "the rig config has no [force_sensor]: `rig run` records forces; add the section (see \
@@ -173,12 +194,28 @@ pub(super) async fn open_rig(
 
 /// Starts the recorder with `manifest` (every trajectory pending) and the F/T's calibration.
 /// It starts before the robot's program is armed, so even a run that cannot reach the robot
-/// is continued with --resume.
+/// is continued with --resume. A resumed recording keeps the calibration it was recorded with:
+/// one opened with another (a replaced calibration file, other counts or ranges) is refused,
+/// since its forces would not be comparable. Only the front end's address may differ (the
+/// simulated rig's ports change from run to run).
 pub(super) fn start_recorder(
     opts: &RunOptions,
     mut manifest: Manifest,
     devices: &Devices,
 ) -> anyhow::Result<Arc<Recorder>> {
+    if !manifest.calibration.is_null() {
+        let differs = calibration_differences(&manifest.calibration, &devices.calibration);
+        if !differs.is_empty() {
+            bail!(
+                "--resume: {} was recorded with another F/T calibration (differs in: {}; see \
+                 calibration in its {}); resume it with the sensor and calibration file it was \
+                 recorded with, or choose another --out",
+                opts.out.display(),
+                differs.join(", "),
+                crate::record::MANIFEST_NAME
+            );
+        }
+    }
     manifest.calibration = devices.calibration.clone();
     let rec = Recorder::start(&opts.out, manifest, RecorderConfig::default()).with_context(|| {
         format!(

@@ -336,3 +336,52 @@ fn extreme_command_line_values_are_errors_not_panics() {
     assert!(t.contains("at most 3600000 ms"), "{t}");
     assert!(!tmp.path().join("never").exists());
 }
+
+/// The F/T calibration file replaced between a run and its resume (same config, same path):
+/// the resume is refused before anything moves, naming the calibration, and the recording is
+/// left as it was.
+#[test]
+fn resume_refuses_another_ft_calibration() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cal = tmp.path().join("ft.cal");
+    let original = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/nano17_axis_only.cal"
+    ))
+    .unwrap();
+    std::fs::write(&cal, &original).unwrap();
+    let line = "kind = \"sim\"                # the simulated Nano17";
+    let cfg = common::edited_sim_config(
+        tmp.path(),
+        "cal.toml",
+        &[(
+            line,
+            &format!("{line}\ncalibration_file = {:?}", cal.display().to_string()),
+        )],
+    );
+    let out_dir = tmp.path().join("run");
+    run_ok(&mut rig_run(&cfg, &out_dir, 1, &[]));
+    let before = final_files(&out_dir);
+
+    assert!(original.contains("Serial=\"FT90018\""));
+    std::fs::write(
+        &cal,
+        original.replace("Serial=\"FT90018\"", "Serial=\"FT90099\""),
+    )
+    .unwrap();
+    let out = rig_run(&cfg, &out_dir, 2, &["--resume"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("another F/T calibration") && stderr.contains("calibration_file"),
+        "{}",
+        text(&out)
+    );
+    assert_eq!(final_files(&out_dir), before);
+
+    // The original file back: the resume goes on.
+    std::fs::write(&cal, &original).unwrap();
+    run_ok(&mut rig_run(&cfg, &out_dir, 2, &["--resume"]));
+    assert_complete(&out_dir, 2);
+}
