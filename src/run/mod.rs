@@ -100,6 +100,7 @@ pub async fn run(
     // nor before the output directory is (an existing recording is only continued on --resume).
     let ids: Vec<String> = planned.iter().map(|t| t.id.clone()).collect();
     let output = output::prepare(config, &plan, &ids, &opts.out, opts.resume)?;
+    let _out_lock = output.lock;
     let todo: Vec<&Trajectory> = planned
         .iter()
         .filter(|t| !output.complete.contains(&t.id))

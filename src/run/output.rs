@@ -14,6 +14,34 @@ use crate::record::{self, Manifest, SensorInfo};
 pub(super) struct Output {
     pub manifest: Manifest,
     pub complete: Vec<String>,
+    /// The lock on the directory ([`lock_dir`]); held until the run ends.
+    pub lock: Option<std::fs::File>,
+}
+
+/// Takes an exclusive advisory lock (`flock`) on the output directory, creating it if need be,
+/// so that two runs never write into the same `--out`: the second is refused at once, before
+/// it touches anything (a resume would otherwise delete the first run's partial file). The
+/// lock goes with the process, so a killed run leaves none behind.
+fn lock_dir(dir: &Path) -> anyhow::Result<std::fs::File> {
+    std::fs::create_dir_all(dir).with_context(|| {
+        format!(
+            "cannot create the output directory {}; check the path and its permissions, or choose another --out",
+            dir.display()
+        )
+    })?;
+    let f = std::fs::File::open(dir)
+        .with_context(|| format!("cannot open the output directory {}", dir.display()))?;
+    match f.try_lock() {
+        Ok(()) => Ok(f),
+        Err(std::fs::TryLockError::WouldBlock) => bail!(
+            "another rig run is writing into {} (it holds the directory's lock); wait for it to \
+             finish, or choose another --out",
+            dir.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => {
+            Err(e).with_context(|| format!("cannot lock the output directory {}", dir.display()))
+        }
+    }
 }
 
 /// Whether `dir` holds anything at all.
@@ -64,6 +92,7 @@ fn prepare_output(
         return Ok(Output {
             manifest: fresh,
             complete: Vec::new(),
+            lock: None,
         });
     }
     if !has_manifest {
@@ -81,6 +110,7 @@ fn prepare_output(
         return Ok(Output {
             manifest: fresh,
             complete: Vec::new(),
+            lock: None,
         });
     }
     // Compare before `resume` touches anything (it deletes stale partial files).
@@ -132,6 +162,7 @@ fn prepare_output(
     Ok(Output {
         manifest: old,
         complete: verdict.complete,
+        lock: None,
     })
 }
 
@@ -183,5 +214,14 @@ pub(super) fn prepare(
         serde_json::Value::Null,
         ids,
     );
-    prepare_output(dir, resume, ids, fresh)
+    if dir.exists() && !dir.is_dir() {
+        bail!(
+            "--out {} is a file, not a directory; choose another --out",
+            dir.display()
+        );
+    }
+    let lock = lock_dir(dir)?;
+    let mut out = prepare_output(dir, resume, ids, fresh)?;
+    out.lock = Some(lock);
+    Ok(out)
 }

@@ -385,3 +385,40 @@ fn resume_refuses_another_ft_calibration() {
     run_ok(&mut rig_run(&cfg, &out_dir, 2, &["--resume"]));
     assert_complete(&out_dir, 2);
 }
+
+/// Two runs into one `--out`: the second is refused at once, even with --resume, while the first
+/// records on undisturbed; after it ends the lock is gone and a resume is accepted.
+#[test]
+fn a_second_run_into_the_same_out_is_refused_while_the_first_records() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config();
+    let out_dir = tmp.path().join("run");
+    let mut first = rig_run(&cfg, &out_dir, 2, &[])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The manifest is written once the first run holds the lock and has started recording.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !out_dir.join("manifest.json").exists() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the first run never started recording"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let second = rig_run(&cfg, &out_dir, 2, &["--resume"]).output().unwrap();
+    let first = first.wait_with_output().unwrap();
+    assert!(first.status.success(), "first run:\n{}", text(&first));
+    assert_eq!(second.status.code(), Some(1), "{}", text(&second));
+    assert!(
+        String::from_utf8_lossy(&second.stderr).contains("another rig run is writing into"),
+        "{}",
+        text(&second)
+    );
+    assert_complete(&out_dir, 2);
+    // The lock went with the first process.
+    let again = run_ok(&mut rig_run(&cfg, &out_dir, 2, &["--resume"]));
+    assert!(text(&again).contains("nothing to do"), "{}", text(&again));
+}

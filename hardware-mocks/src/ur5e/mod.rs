@@ -286,6 +286,12 @@ async fn run_controller(shared: Arc<Shared>) {
             .next_tick_ns
             .lock()
             .unwrap_or_else(|p| p.into_inner());
+        // Ticks processed by others ([`Ur5e::snapshot_now`], [`Ur5e::tcp_pose_at`]) are the
+        // controller's progress too. Reported before sleeping towards the next one: if others
+        // had processed ticks up to where the clock holds for this pacer, the next tick would
+        // lie beyond the hold, and the clock and this task would wait for each other forever
+        // (a `rig run` hung that way on a loaded host).
+        pacer.reached(next_ns.saturating_sub(period));
         shared.clock.sleep_until_ns(next_ns).await;
         let now = shared.clock.now_ns();
         if now.saturating_sub(next_ns) > MAX_CATCH_UP_NS {
