@@ -394,7 +394,7 @@ fn a_second_run_into_the_same_out_is_refused_while_the_first_records() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = config();
     let out_dir = tmp.path().join("run");
-    let mut first = rig_run(&cfg, &out_dir, 2, &[])
+    let first = rig_run(&cfg, &out_dir, 2, &[])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
