@@ -417,27 +417,38 @@ async fn sim_rig_runs_on_a_scaled_clock() {
     rig.shutdown().await;
 }
 
-/// The camera renders a frame after its capture time: `field_at` must give the field of the
-/// pose at that time, not the newest one, and fields closer than 2 ms are not kept twice.
-#[test]
-fn field_at_gives_the_field_of_the_capture_time_not_the_newest() {
+/// Winkler contact physics of a sphere on the sim-source gel, with surface fields; the surface
+/// frame with it.
+fn winkler_sphere(on_demand: bool) -> (Pose, ContactPhysics) {
     let cfg = RigConfig::sim_source();
-    let frame = cfg.sensor.surface_frame;
     let physics = ContactPhysics::new(
-        frame,
+        cfg.sensor.surface_frame,
         cfg.elastomer.clone(),
         sphere(),
         PhysicsConfig {
             contact: sim::ContactModel::Winkler,
+            on_demand,
             ..PhysicsConfig::default()
         },
         true,
     )
     .unwrap();
-    let depth_of = |t: u64| {
-        let (_, f) = physics.field_at(t).expect("a field");
-        -f.uz_mm.iter().copied().fold(0.0, f64::min)
-    };
+    (cfg.sensor.surface_frame, physics)
+}
+
+/// The pressed-in depth of the field `field_at(t_ns)` gives, mm (Winkler: the surface follows
+/// the indenter where it touches).
+fn field_depth_mm(physics: &ContactPhysics, t_ns: u64) -> f64 {
+    let (_, f) = physics.field_at(t_ns).expect("a field");
+    -f.uz_mm.iter().copied().fold(0.0, f64::min)
+}
+
+/// The camera renders a frame after its capture time: `field_at` must give the field of the
+/// pose at that time, not the newest one, and fields closer than 2 ms are not kept twice.
+#[test]
+fn field_at_gives_the_field_of_the_capture_time_not_the_newest() {
+    let (frame, physics) = winkler_sphere(false);
+    let depth_of = |t: u64| field_depth_mm(&physics, t);
     let shallow = pose_above_surface(&frame, 0.0, 0.0, -0.2);
     let deep = pose_above_surface(&frame, 0.0, 0.0, -0.6);
     physics.update(10_000_000, &shallow).unwrap();
@@ -472,20 +483,7 @@ fn field_at_gives_the_field_of_the_capture_time_not_the_newest() {
 /// must replay the ticks it missed at their own poses instead of skipping them.
 #[tokio::test]
 async fn a_stalled_physics_task_leaves_no_gap_and_late_frames_see_their_own_instant() {
-    let cfg = RigConfig::sim_source();
-    let frame = cfg.sensor.surface_frame;
-    let physics = ContactPhysics::new(
-        frame,
-        cfg.elastomer.clone(),
-        sphere(),
-        PhysicsConfig {
-            contact: sim::ContactModel::Winkler,
-            on_demand: true,
-            ..PhysicsConfig::default()
-        },
-        true,
-    )
-    .unwrap();
+    let (frame, physics) = winkler_sphere(true);
     // Pressing straight down at 4 µm per ms of clock time: 0.8 mm at 200 ms.
     const MM_PER_MS: f64 = 0.004;
     let depth_at = |t_ns: u64| MM_PER_MS * t_ns as f64 * 1e-6;
@@ -497,10 +495,7 @@ async fn a_stalled_physics_task_leaves_no_gap_and_late_frames_see_their_own_inst
     let period_ms = 1e3 / PhysicsConfig::default().rate_hz;
     // One physics period of motion, plus the Winkler field's own error (see the test above).
     let tol_mm = MM_PER_MS * period_ms + 0.02;
-    let field_depth = |t_ns: u64| {
-        let (_, f) = physics.field_at(t_ns).expect("a field");
-        -f.uz_mm.iter().copied().fold(0.0, f64::min)
-    };
+    let field_depth = |t_ns: u64| field_depth_mm(&physics, t_ns);
 
     // The stall: 60 ms pass and the task does not run (this runtime is not yielded to).
     handle.advance(Duration::from_millis(60));
