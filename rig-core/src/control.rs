@@ -33,6 +33,12 @@ pub const IN_TARGET_POSE: u32 = 24;
 pub const IN_SPEED: u32 = 30;
 /// input_double_register: tool acceleration for moveL (and deceleration for stop), m/s².
 pub const IN_ACCEL: u32 = 31;
+/// input_int_register: the safety supervisor's stop request, a counter written with every
+/// heartbeat. When it changes, the program kills any move and decelerates (`stopl`) at once,
+/// whatever command is in progress: the stop path never shares a sequence number with motion.
+pub const IN_STOP_REQ: u32 = 27;
+/// input_double_register: deceleration of a supervisor stop, m/s² (written with the request).
+pub const IN_STOP_DECEL: u32 = 32;
 
 /// output_int_register: last command sequence number the program has read.
 pub const OUT_ACK_SEQ: u32 = 24;

@@ -8,12 +8,12 @@
 //! upload, which the sequencer does not see.
 
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::time::Duration;
 
 use rig_core::clock::Clock;
 use rig_core::control::{self, CommandKind};
 use rig_core::pose::{self, Pose};
-use rig_core::rtde::Value;
 use tokio::io::AsyncWriteExt;
 use tokio::net::TcpStream;
 use tokio::sync::broadcast::error::RecvError;
@@ -26,6 +26,7 @@ use super::error::MotionError;
 use super::motion::{self, CommandWrite, FaultRecord, MotionSequencer, SeqEvent, SequencerConfig};
 use super::moves::{LoggedState, Move, MoveReport, MovesLog};
 use super::rtde::{LinkStatus, RtdeClient, RtdeConfig, RtdeError, RtdeHandle};
+use super::safety_line::{LineState, SafetyLine};
 use super::state::RobotState;
 use super::urscript;
 
@@ -33,10 +34,8 @@ use super::urscript;
 /// this runs out only when no data comes at all.
 const STATE_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// Index of the command recipe in the RTDE client's input recipes.
+/// Index of the command recipe in the RTDE client's input recipes (the safety recipe follows).
 const CMD_RECIPE: usize = 0;
-/// Index of the heartbeat recipe.
-const HEARTBEAT_RECIPE: usize = 1;
 
 /// The robot: RTDE client, dashboard, sequencer and heartbeat.
 pub struct Robot {
@@ -48,6 +47,7 @@ pub struct Robot {
     clock: Clock,
     seq: MotionSequencer,
     heartbeat: JoinHandle<()>,
+    line: Arc<LineState>,
     prepared: bool,
 }
 
@@ -89,7 +89,7 @@ impl Robot {
     ) -> Result<Self, MotionError> {
         let mut cfg = RtdeConfig::new(endpoints.rtde);
         cfg.frequency_hz = opts.frequency_hz;
-        cfg.input_recipes = vec![motion::command_recipe(), motion::heartbeat_recipe()];
+        cfg.input_recipes = vec![motion::command_recipe(), motion::safety_recipe()];
         cfg.max_attempts = opts.rtde_max_attempts;
         cfg.backoff_initial = opts.rtde_backoff_initial;
         cfg.backoff_max = opts.rtde_backoff_max;
@@ -98,7 +98,12 @@ impl Robot {
         let dashboard =
             Dashboard::connect(endpoints.dashboard, clock.clone(), opts.dashboard_timeout).await?;
         let handle = rtde.handle();
-        let heartbeat = tokio::spawn(heartbeat_task(rtde.watch_state(), rtde.handle()));
+        let line = LineState::new(opts.stop_accel_m_s2);
+        let heartbeat = tokio::spawn(heartbeat_task(
+            rtde.watch_state(),
+            rtde.handle(),
+            line.clone(),
+        ));
         let seq = MotionSequencer::new(SequencerConfig {
             ack_timeout: opts.ack_timeout,
             move_timeout_margin: opts.move_timeout_margin,
@@ -113,6 +118,7 @@ impl Robot {
             clock,
             seq,
             heartbeat,
+            line,
             prepared: false,
         };
         let s = robot
@@ -139,6 +145,12 @@ impl Robot {
     pub fn state(&self) -> Option<RobotState> {
         self.rtde.latest()
     }
+    /// Hand the heartbeat and the stop to a safety supervisor (see [`SafetyLine`]): until the
+    /// line is dropped, only its owner feeds the controller's watchdog.
+    pub fn safety_line(&self) -> SafetyLine {
+        SafetyLine::take(self.rtde.handle(), self.line.clone())
+    }
+
     /// The fault that blocks motion, if any.
     pub fn fault(&self) -> Option<&FaultRecord> {
         self.seq.fault()
@@ -638,11 +650,17 @@ impl Robot {
     }
 }
 
-async fn heartbeat_task(mut rx: watch::Receiver<Option<RobotState>>, h: RtdeHandle) {
-    let mut n: i32 = 0;
+/// The robot's own heartbeat, one per RTDE state, while no [`SafetyLine`] owns it.
+async fn heartbeat_task(
+    mut rx: watch::Receiver<Option<RobotState>>,
+    h: RtdeHandle,
+    line: Arc<LineState>,
+) {
     while rx.changed().await.is_ok() {
-        n = n.wrapping_add(1);
+        if line.external() {
+            continue;
+        }
         // NotConnected while reconnecting is expected; the next cycle writes again.
-        let _ = h.send_inputs(HEARTBEAT_RECIPE, &[Value::Int32(n)]).await;
+        let _ = line.beat(&h).await;
     }
 }

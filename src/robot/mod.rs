@@ -46,6 +46,7 @@ mod config;
 mod error;
 mod facade;
 mod moves;
+mod safety_line;
 
 pub use config::{LinkLossPolicy, RobotEndpoints, RobotOptions};
 pub use dashboard::{Dashboard, DashboardError};
@@ -54,4 +55,5 @@ pub use facade::{Robot, upload_program};
 pub use motion::{CommandWrite, Fault, FaultRecord, MotionSequencer, SeqEvent, SequencerConfig};
 pub use moves::{LoggedState, Move, MoveReport, MovesLog};
 pub use rtde::{LinkStatus, RtdeClient, RtdeConfig, RtdeError, RtdeHandle, RtdeStats};
+pub use safety_line::SafetyLine;
 pub use state::RobotState;

@@ -41,10 +41,14 @@ pub fn command_recipe() -> Vec<String> {
     v
 }
 
-/// The heartbeat input recipe (a recipe of its own, so a heartbeat write never rewrites a
-/// command).
-pub fn heartbeat_recipe() -> Vec<String> {
-    vec![control::input_int(control::IN_HEARTBEAT)]
+/// The safety input recipe: heartbeat, stop request and stop deceleration (a recipe of its own,
+/// so a heartbeat or a stop never rewrites a motion command; see [`super::SafetyLine`]).
+pub fn safety_recipe() -> Vec<String> {
+    vec![
+        control::input_int(control::IN_HEARTBEAT),
+        control::input_int(control::IN_STOP_REQ),
+        control::input_double(control::IN_STOP_DECEL),
+    ]
 }
 
 /// One command to write into the input registers.
@@ -343,6 +347,18 @@ impl MotionSequencer {
                 "`{label}`: speed {speed_m_s} m/s and acceleration {accel_m_s2} m/s² must be finite and positive"
             )));
         }
+        if !state
+            .actual_tcp_pose
+            .to_array()
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return Err(Refusal::BadArgs(format!(
+                "`{label}`: the controller reports a non-finite TCP pose {:?}; no motion until \
+                 it reports a real one (check the robot's calibration and the RTDE link)",
+                state.actual_tcp_pose.to_array()
+            )));
+        }
         self.last_state = Some(*state);
         self.check_ready(state)?;
         Ok(self.issue(
@@ -553,6 +569,31 @@ mod tests {
             Some(SeqEvent::Done { seq: 42, ref label, .. }) if label == "p0/down"
         ));
         assert!(!q.is_busy());
+    }
+
+    #[test]
+    fn a_non_finite_reported_pose_refuses_the_move() {
+        let mut q = MotionSequencer::new(SequencerConfig::default());
+        let target = ok_state().actual_tcp_pose;
+        for bad in [f64::NAN, f64::INFINITY] {
+            let mut s = ok_state();
+            s.actual_tcp_pose.z = bad;
+            let e = q
+                .start_move("p1/transit", target, 0.01, 0.1, &s, 0)
+                .unwrap_err();
+            let msg = e.to_string();
+            assert!(
+                msg.contains("non-finite TCP pose") && msg.contains("p1/transit"),
+                "{msg}"
+            );
+            assert!(
+                q.active().is_none(),
+                "a refused move left a command in progress"
+            );
+        }
+        // The same move from a real pose is issued.
+        q.start_move("p1/transit", target, 0.01, 0.1, &ok_state(), 0)
+            .unwrap();
     }
 
     #[test]

@@ -160,7 +160,7 @@ pub(super) async fn open_rig(
         indenter,
         &clock,
         simrig::StartOptions {
-            home,
+            home: opts.sim_start_pose.unwrap_or(home),
             speed_factor: opts.speed_factor,
             physics: opts.sim_physics.clone(),
             ft_front_end: opts.sim_ft,
@@ -217,7 +217,15 @@ pub(super) fn start_recorder(
         }
     }
     manifest.calibration = devices.calibration.clone();
-    let rec = Recorder::start(&opts.out, manifest, RecorderConfig::default()).with_context(|| {
+    let rec = Recorder::start(
+        &opts.out,
+        manifest,
+        RecorderConfig {
+            gate: opts.recorder_gate.clone(),
+            ..RecorderConfig::default()
+        },
+    )
+    .with_context(|| {
         format!(
             "cannot record into {}; check the path and its permissions, or choose another --out",
             opts.out.display()

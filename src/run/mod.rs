@@ -64,6 +64,7 @@ mod devices;
 mod options;
 mod output;
 mod pipeline;
+pub mod safety;
 pub mod streams;
 mod summary;
 mod trajectory;
@@ -82,7 +83,7 @@ use pipeline::Pipeline;
 use trajectory::Ctx;
 
 pub use options::RunOptions;
-pub use summary::{RunSummary, TrajectoryOutcome};
+pub use summary::{Retract, RunSummary, TrajectoryOutcome};
 pub use trajectory::{assess, stage_moves, trajectory_moves};
 
 /// Build and check the plan, check the output directory, then run and record the plan on the
@@ -141,6 +142,7 @@ pub async fn run(
         rec.clone(),
         &robot,
     );
+    let retracts = std::sync::Mutex::new(Vec::new());
     let bar = progress_bar(opts.progress, planned.len(), summary.skipped);
     let ctx = Ctx {
         config,
@@ -155,18 +157,23 @@ pub async fn run(
             .map_or(0, |f| u64::from(f.tare_samples)),
         tare_timeout: Duration::from_secs_f64(5.0 * speed),
         stage_tx: &pipeline.stage_tx,
+        retracts: &retracts,
     };
     if ctx.tare_samples == 0 {
         // No tare asked for: the readings are taken as they are, limit included.
         pipeline.streams.arm_force_limit();
     }
 
+    // Nothing moves from a pose that is not finite or outside the envelope (each trajectory
+    // then clears the gel and checks its transit before it moves).
+    trajectory::check_start(&robot, config)?;
+
     // The trajectories, one after the other.
     let t0 = clock.now_ns();
     let mut attempted = 0usize;
     for t in &todo {
         attempted += 1;
-        match trajectory::record(&mut robot, &ctx, t, home).await {
+        match trajectory::record(&mut robot, &ctx, t).await {
             Ok(outcome) => {
                 let counters = pipeline.streams.counters();
                 bar.set_message(summary::progress_message(&outcome.stats, counters));
@@ -190,6 +197,7 @@ pub async fn run(
     summary.clock_holds = clock.hold_stats();
     summary.image_lag_max_ms = sim.as_ref().map(|s| s.image_lag_max_ms());
     pipeline.count_into(&mut summary, &rec);
+    summary.retracts = retracts.lock().unwrap_or_else(|e| e.into_inner()).clone();
 
     // Orderly shutdown: streams, collector, recorder (every queued record written), rig.
     pipeline.shutdown().await;

@@ -6,8 +6,11 @@ use std::path::PathBuf;
 use anyhow::bail;
 use rig_core::config::RigConfig;
 
+use rig_core::pose::Pose;
+
 use super::collector::Tap;
 use crate::plan::{Plan, Trajectory};
+use crate::record::WriterGate;
 use crate::simrig::{self, PhysicsConfig, SimFault, SimFtFrontEnd};
 
 /// The fastest a simulated run's clock may be asked to run (`--speed-factor`): the rig's
@@ -36,6 +39,12 @@ pub struct RunOptions {
     pub sim_faults: Vec<SimFault>,
     /// Sees every record written (the Foxglove live view).
     pub tap: Option<Tap>,
+    /// Simulated rig only: where the arm's TCP is when the rig starts (default: the first
+    /// trajectory's start). A lab arm is wherever the last run left it, e.g. at depth after a
+    /// kill; this puts the simulated one there.
+    pub sim_start_pose: Option<Pose>,
+    /// Hold the recorder's writer (a stalled disk, for drills and tests).
+    pub recorder_gate: Option<WriterGate>,
 }
 
 impl std::fmt::Debug for RunOptions {
@@ -49,6 +58,7 @@ impl std::fmt::Debug for RunOptions {
             .field("sim_ft", &self.sim_ft)
             .field("sim_faults", &self.sim_faults)
             .field("tap", &self.tap.is_some())
+            .field("sim_start_pose", &self.sim_start_pose)
             .finish_non_exhaustive()
     }
 }
@@ -66,6 +76,8 @@ impl RunOptions {
             sim_ft: SimFtFrontEnd::NetFt,
             sim_faults: Vec::new(),
             tap: None,
+            sim_start_pose: None,
+            recorder_gate: None,
         }
     }
 }

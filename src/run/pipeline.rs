@@ -15,6 +15,7 @@ use tokio::task::JoinHandle;
 use super::collector::{self, CollectCmd, CollectorSettings};
 use super::devices::Devices;
 use super::options::RunOptions;
+use super::safety::SafetyIo;
 use super::streams::{StreamSettings, Streams};
 use super::summary::RunSummary;
 use crate::plan::StageName;
@@ -60,8 +61,13 @@ impl Pipeline {
                 // Stall limits in real time (a busy machine), expressed in clock time.
                 ft_stall: Duration::from_secs_f64(0.5 * speed),
                 camera_stall: Duration::from_secs_f64((0.5f64).max(10.0 / camera_fps) * speed),
+                envelope: Some(config.safety.envelope),
             },
             ev_tx,
+            Some(SafetyIo {
+                line: robot.safety_line(),
+                states: robot.rtde().watch_state(),
+            }),
         );
         // The controller's and the F/T's clocks are real-time clocks that never jump: a late
         // burst of samples is a delivery stall (a busy machine; tens of ms of clock time on a
@@ -109,7 +115,13 @@ impl Pipeline {
         let (stage_tx, stage_rx) = watch::channel(None);
         let injector = match sim {
             Some(s) if !opts.sim_faults.is_empty() => {
-                Some(s.inject(opts.sim_faults.clone(), clock.clone(), stage_rx))
+                let freeze = streams.freeze_handle();
+                Some(s.inject(
+                    opts.sim_faults.clone(),
+                    clock.clone(),
+                    stage_rx,
+                    Arc::new(move || freeze.freeze(true)),
+                ))
             }
             _ => None,
         };
@@ -128,6 +140,9 @@ impl Pipeline {
         let c = self.streams.counters();
         summary.frames_received = c.frames();
         summary.frames_lost = c.frames_dropped();
+        summary.recording_lost = c.recording_lost();
+        summary.tcp_extent_m = self.streams.tcp_extent();
+        summary.safety_stops = self.streams.safety_stops();
         summary.backpressure_waits = c.backpressure_waits.load(Ordering::Relaxed)
             + rec.stats().backpressure_waits.load(Ordering::Relaxed);
     }

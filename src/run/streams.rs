@@ -1,33 +1,37 @@
 //! The F/T and camera streams of a run, each read on its own task for the whole run.
 //!
-//! - The **F/T task** reads every [`WrenchSample`] of the [`FtStream`], checks it against the
-//!   force limit (tared samples only, unless the config asks for no tare: an untared reading
-//!   is mostly the sensor's bias)
-//!   and forwards it to the collector. A force above `safety.max_force_n`, a
-//!   saturated sensor, the stream ending (a closed port, a dead link) or no sample within the
-//!   stall timeout raises a [`Trip`], which the motion watches.
-//! - The **camera task** reads every frame of the [`FrameSource`], looks up the simulator's true
-//!   wrench at its capture time (simulated rig only) and hands it to the **encoder thread**,
-//!   which encodes it as PNG (lossless, off the async workers) and forwards it. No frame for
-//!   the stall timeout, or the stream ending, raises a [`Trip`].
+//! - The **F/T stream** is read by the safety supervisor ([`super::safety`]), which checks
+//!   every [`WrenchSample`] against the force limit (tared samples only, unless the config asks
+//!   for no tare: an untared reading is mostly the sensor's bias) and saturation, watches both
+//!   streams for stalls, beats the controller's watchdog and commands the stop first on a
+//!   [`Trip`]. It hands samples on to the recording without ever waiting for it.
+//! - The **camera task** reads every frame of the [`FrameSource`], stamps its arrival for the
+//!   supervisor's stall check, and hands it to the **encoder thread**, which encodes it as PNG
+//!   (lossless, off the async workers) and forwards it. The stream ending raises a [`Trip`].
 //!
-//! Both forward into one bounded channel (the collector's input). When it is full they wait:
-//! a slow consumer shows as back-pressure (counted in [`StreamCounters::backpressure_waits`],
-//! warned about once), and the device's own buffers (the F/T channel, the camera queue) take
-//! the slack; nothing is dropped silently.
+//! Both end in one bounded channel (the collector's input). When it is full the F/T forwarder
+//! and the encoder wait: a slow consumer shows as back-pressure (counted in
+//! [`StreamCounters::backpressure_waits`], warned about once). The reading tasks never wait:
+//! when their own queue toward the recording is full, the item is lost for the recording
+//! (counted in [`StreamCounters::recording_lost`]) and the trajectory fails with a recording
+//! error, never silently.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use rig_core::clock::Clock;
-use rig_core::ft::SampleFlags;
 use rig_core::wrench::Wrench;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
+use super::safety::{self, SafetyIo, SafetyStop};
 use crate::camera::{CameraError, Frame, FrameSource};
 use crate::force::{FtStream, TareHandle, TareReport, WrenchSample};
+
+/// Frames queued toward the PNG encoder before they are lost for the recording (about 2 s at
+/// 30 fps, for an encoder held up by back-pressure).
+const ENCODER_QUEUE: usize = 64;
 
 /// Why motion must stop now.
 #[derive(Debug, Clone, PartialEq)]
@@ -44,6 +48,10 @@ pub enum Trip {
     CameraLost(String),
     /// No frame for this long (clock time, ms).
     CameraStalled { after_ms: f64 },
+    /// The controller reports the TCP outside the safety envelope (position, mm).
+    OutsideEnvelope { tcp_mm: [f64; 3] },
+    /// The controller reports a non-finite TCP pose.
+    NonFinitePose,
 }
 
 impl Trip {
@@ -73,6 +81,18 @@ impl std::fmt::Display for Trip {
                  cable and power"
             ),
             Trip::CameraLost(why) => write!(f, "the camera stream ended: {why}"),
+            Trip::OutsideEnvelope { tcp_mm } => write!(
+                f,
+                "the robot reports its TCP at ({:.1}, {:.1}, {:.1}) mm, outside the safety \
+                 envelope; the robot was stopped. Check the TCP offset and the envelope in the \
+                 config, jog the arm back by hand",
+                tcp_mm[0], tcp_mm[1], tcp_mm[2]
+            ),
+            Trip::NonFinitePose => write!(
+                f,
+                "the robot reports a non-finite TCP pose; the robot was stopped. Check the \
+                 controller and the RTDE link"
+            ),
             Trip::CameraStalled { after_ms } => write!(
                 f,
                 "the camera stalled: no frame for {after_ms:.0} ms; check its USB cable, or \
@@ -120,6 +140,12 @@ pub struct StreamCounters {
     pub backpressure_waits: AtomicU64,
     /// Capture stamp of the newest frame handed to the collector, ns (0: none yet).
     pub newest_frame_stamp_ns: AtomicU64,
+    /// Clock time the newest frame arrived from the camera, ns (0: none yet); the supervisor's
+    /// camera stall check reads it.
+    pub last_frame_rx_ns: AtomicU64,
+    /// Samples and frames the reading tasks could not queue toward the recording (it was too
+    /// far behind); a trajectory during which this grows fails.
+    pub recording_lost: AtomicU64,
     /// The force limit applies to every tared sample; to an untared one (its reading holds
     /// the sensor's bias, on a Nano17 up to a few N, not a contact force) only when this is
     /// set, because the config asks for no tare. The flag travels with the sample: samples
@@ -127,6 +153,7 @@ pub struct StreamCounters {
     /// stream task reads them.
     force_limit_untared: AtomicBool,
     backpressure_warned: AtomicBool,
+    recording_lost_warned: AtomicBool,
 }
 
 impl StreamCounters {
@@ -142,6 +169,21 @@ impl StreamCounters {
     pub fn frames_dropped(&self) -> u64 {
         Self::get(&self.frames_dropped)
     }
+    pub fn recording_lost(&self) -> u64 {
+        Self::get(&self.recording_lost)
+    }
+    pub(super) fn force_limit_armed_untared(&self) -> bool {
+        self.force_limit_untared.load(Ordering::Acquire)
+    }
+    pub(super) fn note_recording_lost(&self) {
+        self.recording_lost.fetch_add(1, Ordering::Relaxed);
+        if !self.recording_lost_warned.swap(true, Ordering::Relaxed) {
+            tracing::error!(
+                "the recording is too far behind the streams (a stalled disk?): samples are \
+                 being lost for it; the trajectory will fail. Safety checks go on"
+            );
+        }
+    }
 }
 
 /// Settings of [`Streams::start`].
@@ -153,11 +195,15 @@ pub struct StreamSettings {
     pub ft_stall: Duration,
     /// No frame for this long (clock time) trips.
     pub camera_stall: Duration,
+    /// A reported TCP position outside it trips (checked on every robot state the supervisor
+    /// sees; `None`: not checked).
+    pub envelope: Option<rig_core::config::Envelope>,
 }
 
 /// The running streams.
 pub struct Streams {
-    trip_tx: Arc<watch::Sender<Option<Trip>>>,
+    shared: Arc<safety::Shared>,
+    trips_in: mpsc::UnboundedSender<Trip>,
     counters: Arc<StreamCounters>,
     tare: TareHandle,
     tasks: Vec<JoinHandle<()>>,
@@ -165,9 +211,22 @@ pub struct Streams {
     stop: Arc<AtomicBool>,
 }
 
+/// Freezes or thaws a run's safety supervisor (see [`Streams::freeze_handle`]).
+#[derive(Clone)]
+pub struct SupervisorFreeze(Arc<safety::Shared>);
+
+impl SupervisorFreeze {
+    pub fn freeze(&self, frozen: bool) {
+        if frozen {
+            tracing::warn!("freezing the safety supervisor (drill)");
+        }
+        self.0.frozen.send_replace(frozen);
+    }
+}
+
 /// Forward `ev` into `tx`, waiting (and counting it) when the channel is full. `false` when the
 /// receiver is gone.
-async fn forward<T>(tx: &mpsc::Sender<T>, ev: T, counters: &StreamCounters) -> bool {
+pub(super) async fn forward<T>(tx: &mpsc::Sender<T>, ev: T, counters: &StreamCounters) -> bool {
     match tx.try_send(ev) {
         Ok(()) => true,
         Err(mpsc::error::TrySendError::Full(ev)) => {
@@ -188,47 +247,48 @@ fn note_backpressure(counters: &StreamCounters) {
     }
 }
 
-fn trip(tx: &watch::Sender<Option<Trip>>, t: Trip) {
-    tx.send_if_modified(|cur| {
-        // A fatal trip replaces a non-fatal one; otherwise the first one stands.
-        let replace = match cur {
-            None => true,
-            Some(c) => !c.is_fatal() && t.is_fatal(),
-        };
-        if replace {
-            tracing::warn!("safety trip: {t}");
-            *cur = Some(t);
-        }
-        replace
-    });
-}
-
 impl Streams {
-    /// Starts the tasks. Events go to `out` (the collector's input).
+    /// Starts the supervisor on `ft` and the camera task on `camera`. Events go to `out` (the
+    /// collector's input). With `safety`, the supervisor owns the robot's heartbeat and stop.
     pub fn start(
         ft: FtStream,
         camera: Option<Box<dyn FrameSource>>,
         clock: Clock,
         settings: StreamSettings,
         out: mpsc::Sender<Event>,
+        safety: Option<SafetyIo>,
     ) -> Self {
         let (trip_tx, _) = watch::channel(None);
-        let trip_tx = Arc::new(trip_tx);
         let counters = Arc::new(StreamCounters::default());
+        let shared = Arc::new(safety::Shared {
+            trip_tx: Arc::new(trip_tx),
+            counters: counters.clone(),
+            stops: std::sync::Mutex::new(Vec::new()),
+            extent: std::sync::Mutex::new(None),
+            last_beat_ns: AtomicU64::new(if safety.is_some() {
+                clock.now_ns()
+            } else {
+                u64::MAX
+            }),
+            frozen: watch::channel(false).0,
+        });
         let stop = Arc::new(AtomicBool::new(false));
         let tare = ft.tare_handle();
-        let mut tasks = Vec::new();
-        tasks.push(tokio::spawn(ft_task(
+        let (trips_in, trips_rx) = mpsc::unbounded_channel();
+        let mut tasks: Vec<JoinHandle<()>> = safety::spawn(
             ft,
             clock.clone(),
-            settings.clone(),
+            settings,
+            camera.is_some(),
+            shared.clone(),
+            safety,
+            trips_rx,
             out.clone(),
-            trip_tx.clone(),
-            counters.clone(),
-        )));
+        )
+        .into();
         let mut encoder = None;
         if let Some(cam) = camera {
-            let (enc_tx, enc_rx) = mpsc::channel::<Frame>(16);
+            let (enc_tx, enc_rx) = mpsc::channel::<Frame>(ENCODER_QUEUE);
             let (c, o, s) = (counters.clone(), out.clone(), stop.clone());
             encoder = std::thread::Builder::new()
                 .name("png-encoder".into())
@@ -238,14 +298,14 @@ impl Streams {
             tasks.push(tokio::spawn(camera_task(
                 cam,
                 clock,
-                settings,
                 enc_tx,
-                trip_tx.clone(),
+                trips_in.clone(),
                 counters.clone(),
             )));
         }
         Self {
-            trip_tx,
+            shared,
+            trips_in,
             counters,
             tare,
             tasks,
@@ -256,17 +316,17 @@ impl Streams {
 
     /// Watch the trips.
     pub fn trips(&self) -> watch::Receiver<Option<Trip>> {
-        self.trip_tx.subscribe()
+        self.shared.trip_tx.subscribe()
     }
 
     /// The current trip, if any.
     pub fn current_trip(&self) -> Option<Trip> {
-        self.trip_tx.borrow().clone()
+        self.shared.trip_tx.borrow().clone()
     }
 
     /// Clears a non-fatal trip (after the robot retracted); a fatal one stays and is returned.
     pub fn clear_trip(&self) -> Option<Trip> {
-        self.trip_tx.send_if_modified(|cur| {
+        self.shared.trip_tx.send_if_modified(|cur| {
             if cur.as_ref().is_some_and(|t| !t.is_fatal()) {
                 *cur = None;
                 true
@@ -277,9 +337,49 @@ impl Streams {
         self.current_trip()
     }
 
-    /// Raises a trip from outside (tests, the orchestrator).
+    /// Raises a trip from outside (tests, the orchestrator): the supervisor stops the arm
+    /// first, then publishes it.
     pub fn trip(&self, t: Trip) {
-        trip(&self.trip_tx, t);
+        let _ = self.trips_in.send(t);
+    }
+
+    /// The box the reported TCP positions stayed in, m (`None`: no state seen).
+    pub fn tcp_extent(&self) -> Option<[[f64; 3]; 2]> {
+        *self.shared.extent.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Every stop the supervisor commanded so far.
+    pub fn safety_stops(&self) -> Vec<SafetyStop> {
+        self.shared
+            .stops
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// A handle that freezes the supervisor (a drill: no checks, no heartbeat, as a hung
+    /// task), or thaws it.
+    pub fn freeze_handle(&self) -> SupervisorFreeze {
+        SupervisorFreeze(self.shared.clone())
+    }
+
+    /// Whether the supervisor still feeds the controller's watchdog: a heartbeat written
+    /// after now, within `timeout` of clock time (at once without a safety line: nothing to
+    /// feed). A healthy supervisor beats on every RTDE state (2 ms on an e-Series).
+    pub async fn supervisor_responds(&self, clock: &Clock, timeout: Duration) -> bool {
+        let t0 = clock.now_ns();
+        let beat = || self.shared.last_beat_ns.load(Ordering::Acquire);
+        if beat() == u64::MAX {
+            return true;
+        }
+        let deadline = t0.saturating_add(u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX));
+        while clock.now_ns() < deadline {
+            if beat() > t0 {
+                return true;
+            }
+            clock.sleep(Duration::from_millis(5)).await;
+        }
+        beat() > t0
     }
 
     pub fn counters(&self) -> &Arc<StreamCounters> {
@@ -321,80 +421,17 @@ impl Drop for Streams {
     }
 }
 
-async fn ft_task(
-    mut ft: FtStream,
-    clock: Clock,
-    settings: StreamSettings,
-    out: mpsc::Sender<Event>,
-    trip_tx: Arc<watch::Sender<Option<Trip>>>,
-    counters: Arc<StreamCounters>,
-) {
-    let mut stalled = false;
-    loop {
-        let next = tokio::select! {
-            s = ft.next() => s,
-            _ = clock.sleep(settings.ft_stall) => {
-                if !stalled {
-                    stalled = true;
-                    trip(&trip_tx, Trip::FtStalled { after_ms: settings.ft_stall.as_secs_f64() * 1e3 });
-                }
-                continue;
-            }
-        };
-        let Some(s) = next else {
-            let why = ft
-                .error()
-                .map(|e| e.to_string())
-                .unwrap_or_else(|| format!("{} stopped", ft.description));
-            trip(&trip_tx, Trip::FtLost(why));
-            return;
-        };
-        stalled = false;
-        counters.wrench.fetch_add(1, Ordering::Relaxed);
-        let f = s.wrench.force_n;
-        let norm = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
-        let armed = !s.flags.contains(SampleFlags::UNTARED)
-            || counters.force_limit_untared.load(Ordering::Acquire);
-        if armed && norm > settings.max_force_n {
-            trip(
-                &trip_tx,
-                Trip::ForceLimit {
-                    force_n: norm,
-                    limit_n: settings.max_force_n,
-                },
-            );
-        } else if s.flags.contains(SampleFlags::SATURATED)
-            || s.flags.contains(SampleFlags::GAUGE_SATURATED)
-        {
-            trip(&trip_tx, Trip::Saturated { force_n: norm });
-        }
-        if !forward(&out, Event::Wrench(s), &counters).await {
-            return;
-        }
-    }
-}
-
+/// Reads frames and queues them for the encoder without ever waiting: the supervisor's stall
+/// check reads the arrival stamps, so this task must keep reading whatever the recording does.
 async fn camera_task(
     mut cam: Box<dyn FrameSource>,
     clock: Clock,
-    settings: StreamSettings,
     enc: mpsc::Sender<Frame>,
-    trip_tx: Arc<watch::Sender<Option<Trip>>>,
+    trips: mpsc::UnboundedSender<Trip>,
     counters: Arc<StreamCounters>,
 ) {
-    let mut stalled = false;
     loop {
-        let next = tokio::select! {
-            f = cam.next_frame() => f,
-            _ = clock.sleep(settings.camera_stall) => {
-                if !stalled {
-                    stalled = true;
-                    trip(&trip_tx, Trip::CameraStalled { after_ms: settings.camera_stall.as_secs_f64() * 1e3 });
-                }
-                continue;
-            }
-        };
-        let frame = match next {
+        let frame = match cam.next_frame().await {
             Ok(f) => f,
             Err(CameraError::BadFrame(why)) => {
                 tracing::warn!("camera: bad frame skipped: {why}");
@@ -402,17 +439,21 @@ async fn camera_task(
                 continue;
             }
             Err(e) => {
-                trip(&trip_tx, Trip::CameraLost(e.to_string()));
+                let _ = trips.send(Trip::CameraLost(e.to_string()));
                 return;
             }
         };
-        stalled = false;
+        counters
+            .last_frame_rx_ns
+            .fetch_max(clock.now_ns(), Ordering::AcqRel);
         counters.frames.fetch_add(1, Ordering::Relaxed);
         counters
             .frames_dropped
             .fetch_add(frame.dropped_before, Ordering::Relaxed);
-        if !forward(&enc, frame, &counters).await {
-            return;
+        match enc.try_send(frame) {
+            Ok(()) => {}
+            Err(mpsc::error::TrySendError::Full(_)) => counters.note_recording_lost(),
+            Err(mpsc::error::TrySendError::Closed(_)) => return,
         }
     }
 }
@@ -469,6 +510,7 @@ fn encoder_thread(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rig_core::ft::SampleFlags;
 
     fn sample(seq: u64, fz: f64, flags: SampleFlags) -> WrenchSample {
         WrenchSample {
@@ -496,8 +538,10 @@ mod tests {
                 max_force_n: 1.0,
                 ft_stall: Duration::from_secs(60),
                 camera_stall: Duration::from_secs(60),
+                envelope: None,
             },
             out_tx,
+            None,
         );
         if untared_limit {
             streams.arm_force_limit();

@@ -60,6 +60,24 @@ pub struct RunSummary {
     pub frames_received: u64,
     /// Frames the camera's sequence numbers say were lost in the whole run.
     pub frames_lost: u64,
+    /// F/T samples and frames lost for the recording because it fell too far behind (each
+    /// failed its trajectory).
+    pub recording_lost: u64,
+    /// The box the robot's reported TCP stayed in over the run, m: `[min, max]`.
+    pub tcp_extent_m: Option<[[f64; 3]; 2]>,
+    /// Every stop the safety supervisor commanded, with when it detected the trip and when the
+    /// stop request went out.
+    pub safety_stops: Vec<super::safety::SafetyStop>,
+    /// Every retract along the surface normal: label, from, to.
+    pub retracts: Vec<Retract>,
+}
+
+/// A retract along the surface normal to the approach height.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Retract {
+    pub label: String,
+    pub from: rig_core::pose::Pose,
+    pub to: rig_core::pose::Pose,
 }
 
 /// A simulated frame shows the contact of the newest physics step at or before its capture

@@ -19,7 +19,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 
 use super::collector::{CollectCmd, TrajStats};
 use super::streams::{Streams, Trip};
-use super::summary::TrajectoryOutcome;
+use super::summary::{Retract, TrajectoryOutcome};
 use crate::plan::{Plan, Stage, StageName, Trajectory};
 use crate::record::Recorder;
 use crate::robot::{Move, MovesLog, Robot};
@@ -100,12 +100,17 @@ pub(super) enum TrajectoryError {
     Trip(Trip),
     /// The recording failed (disk full, I/O error): the run stops.
     Record(String),
+    /// The arm is somewhere no move may start from (outside the envelope, a non-finite pose):
+    /// nothing moved, and the run stops.
+    Unsafe(String),
 }
 
 impl TrajectoryError {
     pub(super) fn reason(&self) -> String {
         match self {
-            TrajectoryError::Motion(r) | TrajectoryError::Record(r) => r.clone(),
+            TrajectoryError::Motion(r)
+            | TrajectoryError::Record(r)
+            | TrajectoryError::Unsafe(r) => r.clone(),
             TrajectoryError::Trip(t) => t.to_string(),
         }
     }
@@ -123,6 +128,8 @@ pub(super) struct Ctx<'a> {
     pub tare_timeout: Duration,
     /// Stage starts, announced to the fault injector (simulated rig).
     pub stage_tx: &'a watch::Sender<Option<(String, StageName)>>,
+    /// Every retract made, for the summary.
+    pub retracts: &'a std::sync::Mutex<Vec<Retract>>,
 }
 
 /// Run `fut` (a motion) unless a trip comes first.
@@ -183,6 +190,7 @@ async fn run_trajectory(
             }
         }
     }
+    let lost_before = ctx.streams.counters().recording_lost();
     let _ = ctx.collector.send(CollectCmd::Begin);
     let mut log = MovesLog::default();
     for stage in &t.stages {
@@ -212,6 +220,13 @@ async fn run_trajectory(
             ));
         }
     };
+    let lost = ctx.streams.counters().recording_lost() - lost_before;
+    if lost > 0 {
+        return Err(TrajectoryError::Record(format!(
+            "{lost} F/T samples or frames could not be queued for the recording (it fell too far \
+             behind the streams: a stalled or very slow disk?)"
+        )));
+    }
     Ok((log, stats))
 }
 
@@ -225,22 +240,30 @@ async fn abort_collector(collector: &mpsc::UnboundedSender<CollectCmd>) {
 
 /// Move straight up (surface normal) from wherever the arm is to the approach height, keeping
 /// its orientation. Refused when the target leaves the envelope.
-async fn retract(
-    robot: &mut Robot,
-    config: &RigConfig,
-    plan: &Plan,
-    label: &str,
-) -> anyhow::Result<()> {
+async fn retract(robot: &mut Robot, ctx: &Ctx<'_>, label: &str) -> anyhow::Result<()> {
+    let (config, plan) = (ctx.config, ctx.plan);
     let here = robot
         .state()
         .map(|s| s.actual_tcp_pose)
         .context("no robot state to retract from")?;
+    if !finite(&here) {
+        bail!(
+            "the controller reports a non-finite TCP pose {:?}; not moving. Check the robot, \
+             jog the arm clear of the gel on the teach pendant",
+            here.to_array()
+        );
+    }
     let frame = plan.surface_frame;
     let mut local = pose::pose_trans(&pose::pose_inv(&frame), &here);
     let approach = config.plan.approach_height_mm * 1e-3;
-    if local.z >= approach - 1e-6 {
+    if local.z >= approach - APPROACH_TOLERANCE_M {
         return Ok(());
     }
+    tracing::warn!(
+        "{label}: the arm is {:.3} mm below the approach height over the gel; retracting along \
+         the surface normal first",
+        (approach - local.z) * 1e3
+    );
     local.z = approach;
     let target = pose::pose_trans(&frame, &local);
     if !config
@@ -253,9 +276,18 @@ async fn retract(
             target.to_array()
         );
     }
+    let label = format!("{label}/retract");
+    ctx.retracts
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .push(Retract {
+            label: label.clone(),
+            from: here,
+            to: target,
+        });
     robot
         .run_moves(&[Move {
-            label: format!("{label}/retract"),
+            label,
             pose: target,
             speed_m_s: config.plan.up.speed_mm_s * 1e-3,
             accel_m_s2: config.plan.up.accel_mm_s2 * 1e-3,
@@ -264,18 +296,113 @@ async fn retract(
     Ok(())
 }
 
-/// Records trajectory `t`: the transit from wherever the arm is (`home` when the robot has not
-/// reported yet) to its start, the tare, its stages and its file; then compares its path with
-/// the plan.
+/// How long a healthy supervisor may take to write its next heartbeat, clock time (it beats
+/// on every RTDE state, every 2 ms on an e-Series).
+const SUPERVISOR_RESPONSE: Duration = Duration::from_millis(500);
+
+/// How far below the approach height the arm may be and still count as clear of the gel, m:
+/// well above a UR5e's ±0.03 mm pose repeatability (UR5e data sheet), well below any approach
+/// height (millimetres above the gel).
+const APPROACH_TOLERANCE_M: f64 = 0.2e-3;
+
+fn finite(p: &Pose) -> bool {
+    p.to_array().iter().all(|v| v.is_finite())
+}
+
+/// Where the arm is, refused when the controller reports a non-finite pose or one outside the
+/// envelope: no move may start from there.
+fn checked_pose(robot: &Robot, config: &RigConfig) -> Result<Pose, String> {
+    let here = robot
+        .state()
+        .map(|s| s.actual_tcp_pose)
+        .ok_or("no robot state yet: the RTDE stream is silent")?;
+    if !finite(&here) {
+        return Err(format!(
+            "the controller reports a non-finite TCP pose {:?}; nothing was moved. Check the \
+             robot (pendant, calibration) and the RTDE link, then run again",
+            here.to_array()
+        ));
+    }
+    let e = &config.safety.envelope;
+    if !e.contains([here.x, here.y, here.z]) {
+        return Err(format!(
+            "the arm's TCP is at ({:.1}, {:.1}, {:.1}) mm, outside the safety envelope (x \
+             {:.1}..{:.1}, y {:.1}..{:.1}, z {:.1}..{:.1} mm); nothing was moved. Jog it into the \
+             envelope on the teach pendant, then run again (--resume continues the recording)",
+            here.x * 1e3,
+            here.y * 1e3,
+            here.z * 1e3,
+            e.min_x * 1e3,
+            e.max_x * 1e3,
+            e.min_y * 1e3,
+            e.max_y * 1e3,
+            e.min_z * 1e3,
+            e.max_z * 1e3,
+        ));
+    }
+    Ok(here)
+}
+
+/// Before the first move of a run (or a resume): the arm's pose must be finite and inside the
+/// envelope, or nothing moves.
+pub(super) fn check_start(robot: &Robot, config: &RigConfig) -> anyhow::Result<()> {
+    checked_pose(robot, config)
+        .map(drop)
+        .map_err(anyhow::Error::msg)
+}
+
+/// The transit from `from` to `to` is a straight line: inside the box envelope when both ends
+/// are (a box is convex), and never lower over the gel than its lower end. Both ends must be
+/// at or above the approach height, so the line never enters the gel.
+pub fn check_transit(
+    config: &RigConfig,
+    plan: &Plan,
+    from: &Pose,
+    to: &Pose,
+) -> Result<(), String> {
+    let e = &config.safety.envelope;
+    for (what, p) in [("start", from), ("end", to)] {
+        if !finite(p) {
+            return Err(format!(
+                "the transit's {what} {:?} is not finite",
+                p.to_array()
+            ));
+        }
+        if !e.contains([p.x, p.y, p.z]) {
+            return Err(format!(
+                "the transit's {what} ({:.1}, {:.1}, {:.1}) mm is outside the safety envelope",
+                p.x * 1e3,
+                p.y * 1e3,
+                p.z * 1e3
+            ));
+        }
+        let local = pose::pose_trans(&pose::pose_inv(&plan.surface_frame), p);
+        let approach = config.plan.approach_height_mm * 1e-3;
+        if local.z < approach - APPROACH_TOLERANCE_M {
+            return Err(format!(
+                "the transit's {what} is {:.3} mm below the approach height over the gel",
+                (approach - local.z) * 1e3
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Records trajectory `t`: clear of the gel first (a retract along the surface normal when
+/// the arm is below the approach height), the checked transit to its start, the tare, its
+/// stages and its file; then compares its path with the plan.
 pub(super) async fn record(
     robot: &mut Robot,
     ctx: &Ctx<'_>,
     t: &Trajectory,
-    home: Pose,
 ) -> Result<TrajectoryOutcome, TrajectoryError> {
     let wall_start = std::time::Instant::now();
     let start = t.stages[0].waypoints[0];
-    let here = robot.state().map(|s| s.actual_tcp_pose).unwrap_or(home);
+    checked_pose(robot, ctx.config).map_err(TrajectoryError::Unsafe)?;
+    retract(robot, ctx, &t.id).await.map_err(|e| {
+        TrajectoryError::Unsafe(format!("clearing the gel before the transit: {e:#}"))
+    })?;
+    let here = checked_pose(robot, ctx.config).map_err(TrajectoryError::Unsafe)?;
     let transit = (pose::translation_distance(&here, &start) > 1e-6
         || pose::rotation_distance(&here, &start) > 1e-6)
         .then(|| Move {
@@ -284,6 +411,10 @@ pub(super) async fn record(
             speed_m_s: ctx.config.plan.up.speed_mm_s * 1e-3,
             accel_m_s2: ctx.config.plan.up.accel_mm_s2 * 1e-3,
         });
+    if transit.is_some() {
+        check_transit(ctx.config, ctx.plan, &here, &start)
+            .map_err(|e| TrajectoryError::Unsafe(format!("{}/transit refused: {e}", t.id)))?;
+    }
     ctx.rec
         .begin(&t.id)
         .await
@@ -311,6 +442,14 @@ pub(super) async fn fail(
     e: &TrajectoryError,
     bar: &ProgressBar,
 ) -> Option<String> {
+    if matches!(e, TrajectoryError::Trip(_)) {
+        // Stop first. The supervisor already wrote its stop request before it published the
+        // trip; this is the motion's own stop through the command registers, confirmed by
+        // the program, before any bookkeeping.
+        if let Err(se) = robot.stop().await {
+            tracing::error!("{}: stopping the arm: {se}", t.id);
+        }
+    }
     abort_collector(ctx.collector).await;
     let reason = format!("{}: {}", t.id, e.reason());
     tracing::error!("trajectory {reason}");
@@ -321,8 +460,8 @@ pub(super) async fn fail(
     after_failure(robot, ctx, t, e).await
 }
 
-/// After a failed trajectory: stop and retract the arm as far as it is safe, and say whether
-/// the run must stop (and why).
+/// After a failed trajectory (the arm already stopped after a trip): recover and retract the
+/// arm as far as it is safe, and say whether the run must stop (and why).
 pub(super) async fn after_failure(
     robot: &mut Robot,
     ctx: &Ctx<'_>,
@@ -332,10 +471,8 @@ pub(super) async fn after_failure(
     let continue_ok = ctx.config.safety.on_failure == OnFailure::Continue;
     match e {
         TrajectoryError::Trip(trip) => {
-            if let Err(se) = robot.stop().await {
-                tracing::error!("{}: stopping the arm: {se}", t.id);
-            }
-            if let Err(re) = retract(robot, ctx.config, ctx.plan, &t.id).await {
+            // The arm was stopped first (by the supervisor, then by `fail`).
+            if let Err(re) = retract(robot, ctx, &t.id).await {
                 return Some(format!(
                     "{}: the arm could not be retracted after the stop ({re}); inspect the rig",
                     t.id
@@ -352,6 +489,20 @@ pub(super) async fn after_failure(
             (!continue_ok).then(|| format!("{}: safety.on_failure = \"stop\"", t.id))
         }
         TrajectoryError::Motion(_) => {
+            // Nothing moves again without the supervisor that watches the force and feeds the
+            // watchdog (a hung supervisor is why the controller stopped the program).
+            if !ctx
+                .streams
+                .supervisor_responds(ctx.clock, SUPERVISOR_RESPONSE)
+                .await
+            {
+                return Some(format!(
+                    "{}: the safety supervisor stopped feeding the controller's watchdog (it \
+                     hung), so the controller stopped the arm; nothing moves without it. Inspect \
+                     the rig, then run again with --resume",
+                    t.id
+                ));
+            }
             let safety_stop = robot.state().is_some_and(|s| !s.safety_ok());
             if safety_stop && !continue_ok {
                 // UR: always inspect the cause of a protective stop before unlocking it. The
@@ -376,7 +527,7 @@ pub(super) async fn after_failure(
                 );
                 ctx.clock.sleep(Duration::from_secs(1)).await;
             }
-            if let Err(re) = retract(robot, ctx.config, ctx.plan, &t.id).await {
+            if let Err(re) = retract(robot, ctx, &t.id).await {
                 return Some(format!(
                     "{}: the arm could not be retracted after recovery ({re}); inspect the rig",
                     t.id
@@ -388,10 +539,11 @@ pub(super) async fn after_failure(
             }
             (!continue_ok).then(|| format!("{}: safety.on_failure = \"stop\"", t.id))
         }
+        TrajectoryError::Unsafe(r) => Some(format!("{}: {r}", t.id)),
         TrajectoryError::Record(r) => {
             // The arm finished its stages (a recording error shows at the end) or was stopped
             // by the robot's own error; make sure it is off the gel.
-            let _ = retract(robot, ctx.config, ctx.plan, &t.id).await;
+            let _ = retract(robot, ctx, &t.id).await;
             Some(format!("{}: the recording failed ({r})", t.id))
         }
     }

@@ -36,6 +36,9 @@ pub enum SimFaultKind {
     FtUnplug,
     /// The camera stops sending frames.
     CameraStall,
+    /// The rig's own safety supervisor hangs (no checks, no heartbeat): the controller's RTDE
+    /// watchdog must stop the arm by itself.
+    SupervisorFreeze,
 }
 
 /// The longest delay after its stage's start a fault may be scheduled for, ms: an hour of
@@ -47,13 +50,14 @@ impl std::str::FromStr for SimFault {
     /// `KIND@TRAJECTORY/STAGE[+MS]`, e.g. `protective-stop@p0-d0.4-a030/shear+200`.
     fn from_str(s: &str) -> Result<Self, String> {
         let usage = "expected KIND@TRAJECTORY/STAGE[+MS], e.g. protective-stop@p0-d0.4-a030/shear+200 \
-                     (KIND: protective-stop, rtde-drop, ft-unplug, camera-stall)";
+                     (KIND: protective-stop, rtde-drop, ft-unplug, camera-stall, supervisor-freeze)";
         let (kind, rest) = s.split_once('@').ok_or_else(|| format!("{s:?}: {usage}"))?;
         let kind = match kind {
             "protective-stop" => SimFaultKind::ProtectiveStop,
             "rtde-drop" => SimFaultKind::RtdeDrop,
             "ft-unplug" => SimFaultKind::FtUnplug,
             "camera-stall" => SimFaultKind::CameraStall,
+            "supervisor-freeze" => SimFaultKind::SupervisorFreeze,
             other => return Err(format!("unknown fault kind {other:?}: {usage}")),
         };
         let (traj, stage_ms) = rest
@@ -99,6 +103,8 @@ pub(super) struct FaultTargets {
     pub ur5e: Arc<Ur5e>,
     pub ft: Arc<Faults>,
     pub camera: Option<CameraFaults>,
+    /// Freezes the rig's safety supervisor.
+    pub freeze_supervisor: Arc<dyn Fn() + Send + Sync>,
 }
 
 /// Injects `faults` when their stage starts (plus their delay).
@@ -121,10 +127,11 @@ pub(super) async fn inject_faults(
             .partition(|f| f.trajectory == id && f.stage == stage);
         pending = later;
         for f in now {
-            let (ur, ft, cam, clock) = (
+            let (ur, ft, cam, freeze, clock) = (
                 targets.ur5e.clone(),
                 targets.ft.clone(),
                 targets.camera.clone(),
+                targets.freeze_supervisor.clone(),
                 clock.clone(),
             );
             tokio::spawn(async move {
@@ -146,6 +153,7 @@ pub(super) async fn inject_faults(
                             c.set_stalled(true);
                         }
                     }
+                    SimFaultKind::SupervisorFreeze => freeze(),
                 }
             });
         }

@@ -106,11 +106,13 @@ impl RunningSimRig {
         faults: Vec<SimFault>,
         clock: Clock,
         stages: watch::Receiver<Option<(String, StageName)>>,
+        freeze_supervisor: std::sync::Arc<dyn Fn() + Send + Sync>,
     ) -> JoinHandle<()> {
         let targets = faults::FaultTargets {
             ur5e: self.rig.ur5e_arc(),
             ft: self.rig.ft().faults().clone(),
             camera: self.camera_faults.clone(),
+            freeze_supervisor,
         };
         tokio::spawn(faults::inject_faults(faults, targets, clock, stages))
     }

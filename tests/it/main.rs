@@ -30,6 +30,7 @@ mod rtde_codec_props;
 mod rtde_pause;
 mod run_acceptance;
 mod run_record;
+mod safe_motion;
 mod sim_cli;
 mod sync_bench;
 mod sync_clock;

@@ -195,7 +195,7 @@ async fn text_messages_mid_handshake_and_data_before_the_start_reply() {
     mock.faults().text_messages_during_handshake(true);
     mock.faults().delay_start_ack(Duration::from_millis(300));
     let mut cfg = RtdeConfig::new(mock.rtde_addr());
-    cfg.input_recipes = vec![rig::robot::motion::heartbeat_recipe()];
+    cfg.input_recipes = vec![rig::robot::motion::safety_recipe()];
     let client = RtdeClient::connect(cfg, clock.clone()).await.unwrap();
     let texts = client.recent_text_messages();
     assert!(texts.len() >= 4, "{texts:?}"); // one before each of V, v, O, I
@@ -209,11 +209,14 @@ async fn text_messages_mid_handshake_and_data_before_the_start_reply() {
     assert!(client.stats().data_packages > stats.data_packages);
     client
         .handle()
-        .send_inputs(0, &[Value::Int32(7)])
+        .send_inputs(0, &[Value::Int32(7), Value::Int32(3), Value::Double(2.5)])
         .await
         .unwrap();
     clock.sleep(Duration::from_millis(50)).await;
-    assert_eq!(mock.snapshot().input_int_registers[26], 7);
+    let s = mock.snapshot();
+    assert_eq!(s.input_int_registers[26], 7);
+    assert_eq!(s.input_int_registers[27], 3);
+    assert_eq!(s.input_double_registers[32], 2.5);
     mock.shutdown().await;
 }
 
@@ -225,7 +228,7 @@ async fn recipe_refusals_name_the_variable() {
         .unwrap();
     // Another client holds the heartbeat register: the second one is refused with IN_USE.
     let mut cfg = RtdeConfig::new(mock.rtde_addr());
-    cfg.input_recipes = vec![rig::robot::motion::heartbeat_recipe()];
+    cfg.input_recipes = vec![rig::robot::motion::safety_recipe()];
     let _first = RtdeClient::connect(cfg.clone(), clock.clone())
         .await
         .unwrap();

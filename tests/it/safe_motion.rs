@@ -1,0 +1,179 @@
+//! Safe motion on the simulated rig, run in-process (`rig::run::run`) so the run's summary and
+//! the recording can be read together: where the arm starts is checked before anything moves,
+//! an arm left at depth is retracted along the surface normal first, and no move leaves the
+//! envelope. Real sockets throughout (RTDE, dashboard, script port, Net F/T over UDP); times are
+//! simulated clock time.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use rig::plan::{Plan, StageName};
+use rig::record::{Manifest, Record, Status};
+use rig::run::{RunOptions, RunSummary, run};
+use rig_core::config::RigConfig;
+use rig_core::indenter::Indenter;
+use rig_core::pose::{self, Pose};
+
+use crate::common;
+
+fn setup() -> (RigConfig, Indenter, Plan) {
+    let config = RigConfig::load(common::sim_config()).unwrap();
+    let indenter = Indenter::load("cone").unwrap();
+    let plan = Plan::build(&config, &indenter).unwrap();
+    (config, indenter, plan)
+}
+
+fn status(out: &std::path::Path, id: &str) -> Option<Status> {
+    Manifest::load(out).unwrap().entry(id).map(|e| e.status)
+}
+
+/// Height of `p` over the undeformed gel surface, along its normal, m.
+fn height(plan: &Plan, p: &Pose) -> Pose {
+    pose::pose_trans(&pose::pose_inv(&plan.surface_frame), p)
+}
+
+fn inside(config: &RigConfig, extent: [[f64; 3]; 2]) -> bool {
+    extent.iter().all(|p| config.safety.envelope.contains(*p))
+}
+
+#[test]
+fn a_run_killed_at_depth_resumes_by_retracting_along_the_normal_first() {
+    let _rig = common::one_rig_at_a_time();
+    let (config, indenter, plan) = setup();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("rec");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+
+    // The first run is killed as its second trajectory starts shearing: the indenter is at
+    // depth in the gel.
+    let shears = Arc::new(AtomicUsize::new(0));
+    let last_pose = Arc::new(Mutex::new(None::<Pose>));
+    let (kill_tx, kill_rx) = tokio::sync::watch::channel(false);
+    let tap: rig::run::collector::Tap = {
+        let (shears, last_pose) = (shears.clone(), last_pose.clone());
+        Arc::new(move |r: &Record| match r {
+            Record::Stage {
+                stage: StageName::Shear,
+                ..
+            } => {
+                shears.fetch_add(1, Ordering::SeqCst);
+            }
+            Record::Pose { pose, .. } => {
+                *last_pose.lock().unwrap() = Some(*pose);
+                if shears.load(Ordering::SeqCst) == 2 {
+                    kill_tx.send_replace(true);
+                }
+            }
+            _ => {}
+        })
+    };
+    let opts = RunOptions {
+        limit: Some(2),
+        tap: Some(tap),
+        ..RunOptions::new(&out)
+    };
+    let (c, i) = (config.clone(), indenter.clone());
+    rt.block_on(async {
+        let run = tokio::spawn(async move { run(&c, &i, &opts).await });
+        let mut kill_rx = kill_rx;
+        tokio::select! {
+            r = run => panic!("the run ended before it was killed: {:?}", r.map(|r| r.map(|s| s.report()))),
+            _ = kill_rx.wait_for(|k| *k) => {}
+        }
+    });
+    // Dropping the runtime kills every task of the run, the simulated rig's included.
+    drop(rt);
+    let killed_at = last_pose.lock().unwrap().expect("no pose was recorded");
+    let [t0, t1] = [&plan.trajectories[0].id, &plan.trajectories[1].id];
+    assert_eq!(status(&out, t0), Some(Status::Complete));
+    assert_ne!(status(&out, t1), Some(Status::Complete));
+    let depth_mm = -height(&plan, &killed_at).z * 1e3;
+    assert!(
+        depth_mm > 0.1,
+        "the arm was not in the gel when the run was killed ({depth_mm:.3} mm deep)"
+    );
+
+    // The lab arm stays where the kill left it: the simulated one starts there.
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let opts = RunOptions {
+        limit: Some(2),
+        resume: true,
+        sim_start_pose: Some(killed_at),
+        ..RunOptions::new(&out)
+    };
+    let summary: RunSummary = rt.block_on(run(&config, &indenter, &opts)).unwrap();
+    assert_eq!(summary.skipped, 1, "{}", summary.report());
+    assert_eq!(summary.trajectories.len(), 1, "{}", summary.report());
+    assert!(summary.failed.is_empty(), "{}", summary.report());
+
+    // The first motion is the retract, from exactly where the kill left the arm, straight up
+    // the surface normal to the approach height.
+    let r = summary.retracts.first().expect("no retract was made");
+    assert_eq!(r.label, format!("{t1}/retract"));
+    assert!(
+        pose::translation_distance(&r.from, &killed_at) < 1e-9,
+        "something moved the arm before the retract: it started from {:?}, not {:?}",
+        r.from,
+        killed_at
+    );
+    let (from, to) = (height(&plan, &r.from), height(&plan, &r.to));
+    let approach_m = config.plan.approach_height_mm * 1e-3;
+    assert!((to.z - approach_m).abs() < 1e-9, "retract to {:.6} m", to.z);
+    assert!(
+        (to.x - from.x).abs() < 1e-9 && (to.y - from.y).abs() < 1e-9,
+        "the retract was not along the normal: {from:?} -> {to:?}"
+    );
+    assert!(pose::rotation_distance(&r.from, &r.to) < 1e-9);
+    assert_eq!(summary.retracts.len(), 1, "{:?}", summary.retracts);
+
+    // Every reported TCP position of the resumed run, transits included, stayed in the
+    // envelope; nothing tripped.
+    let extent = summary.tcp_extent_m.expect("no robot state was seen");
+    assert!(inside(&config, extent), "{extent:?}");
+    assert!(
+        summary.safety_stops.is_empty(),
+        "{:?}",
+        summary.safety_stops
+    );
+
+    // The dataset is complete.
+    assert_eq!(status(&out, t1), Some(Status::Complete));
+    let report = rig::dataset::check(&out);
+    assert!(report.ok(), "{}", rig::dataset::render(&report));
+}
+
+#[test]
+fn a_non_finite_or_outside_the_envelope_start_pose_is_refused_before_any_motion() {
+    let _rig = common::one_rig_at_a_time();
+    let (config, indenter, plan) = setup();
+    let start = plan.trajectories[0].stages[0].waypoints[0];
+    let mut nan = start;
+    nan.y = f64::NAN;
+    let mut outside = start;
+    outside.x = config.safety.envelope.max_x + 0.05;
+    for (pose, expected) in [
+        (nan, "non-finite TCP pose"),
+        (outside, "outside the safety envelope"),
+    ] {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("rec");
+        let opts = RunOptions {
+            limit: Some(1),
+            sim_start_pose: Some(pose),
+            ..RunOptions::new(&out)
+        };
+        let rt = tokio::runtime::Runtime::new().unwrap();
+        let err = rt
+            .block_on(run(&config, &indenter, &opts))
+            .expect_err("the run moved from a bad start pose");
+        let msg = format!("{err:#}");
+        assert!(msg.contains(expected), "{msg}");
+        assert!(msg.contains("nothing was moved"), "{msg}");
+        // No trajectory was begun.
+        assert_eq!(
+            status(&out, &plan.trajectories[0].id),
+            Some(Status::Pending),
+            "{msg}"
+        );
+    }
+}
