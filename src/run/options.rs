@@ -45,6 +45,8 @@ pub struct RunOptions {
     pub sim_start_pose: Option<Pose>,
     /// Hold the recorder's writer (a stalled disk, for drills and tests).
     pub recorder_gate: Option<WriterGate>,
+    /// Sees every stop the safety supervisor commands (see [`super::safety::StopObserver`]).
+    pub on_safety_stop: Option<super::safety::StopObserver>,
 }
 
 impl std::fmt::Debug for RunOptions {
@@ -78,6 +80,7 @@ impl RunOptions {
             tap: None,
             sim_start_pose: None,
             recorder_gate: None,
+            on_safety_stop: None,
         }
     }
 }

@@ -68,6 +68,7 @@ impl Pipeline {
                 line: robot.safety_line(),
                 states: robot.rtde().watch_state(),
             }),
+            opts.on_safety_stop.clone(),
         );
         // The controller's and the F/T's clocks are real-time clocks that never jump: a late
         // burst of samples is a delivery stall (a busy machine; tens of ms of clock time on a

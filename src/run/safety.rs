@@ -51,13 +51,29 @@ pub struct SafetyStop {
     pub commanded_ns: Option<u64>,
     /// The stop request's counter value as written (matches `IN_STOP_REQ` on the controller).
     pub request: Option<i32>,
+    /// The robot's reported TCP when the trip was detected (its newest state, at most one
+    /// RTDE period old).
+    pub tcp_at_detection: Option<rig_core::pose::Pose>,
+    /// Whether the recording was backed up when the trip was detected: the F/T forwarder was
+    /// waiting for the collector (the disk or the collector behind).
+    pub recording_backed_up: bool,
+    /// Simulated rig only: when the stop request reached the controller (clock time, ns).
+    pub reached_controller_ns: Option<u64>,
 }
+
+/// Sees every stop the supervisor commands, right after it is commanded and published. It
+/// runs on the supervisor's task: it must return at once (a notification, never I/O).
+pub type StopObserver = Arc<dyn Fn(&SafetyStop) + Send + Sync>;
 
 /// What the supervisor shares with [`super::streams::Streams`].
 pub(super) struct Shared {
     pub trip_tx: Arc<watch::Sender<Option<Trip>>>,
     pub counters: Arc<StreamCounters>,
     pub stops: std::sync::Mutex<Vec<SafetyStop>>,
+    /// Sees every stop (see [`StopObserver`]).
+    pub observer: Option<StopObserver>,
+    /// The newest robot state the supervisor saw.
+    pub last_state: std::sync::Mutex<Option<RobotState>>,
     /// Clock time of the last heartbeat written, ns (`u64::MAX`: no line to beat).
     pub last_beat_ns: std::sync::atomic::AtomicU64,
     /// The box the reported TCP positions stayed in, m: `[min, max]`.
@@ -109,16 +125,29 @@ impl Supervisor {
             }
         }
         tracing::warn!("safety trip: {t}");
+        let stop = SafetyStop {
+            trip: t.clone(),
+            detected_ns,
+            commanded_ns,
+            request,
+            tcp_at_detection: self
+                .shared
+                .last_state
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .map(|s| s.actual_tcp_pose),
+            recording_backed_up: self
+                .shared
+                .counters
+                .ft_forwarder_waiting
+                .load(Ordering::Acquire),
+            reached_controller_ns: None,
+        };
         self.shared
             .stops
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .push(SafetyStop {
-                trip: t.clone(),
-                detected_ns,
-                commanded_ns,
-                request,
-            });
+            .push(stop.clone());
         self.shared.trip_tx.send_if_modified(|cur| {
             let r = replaces(cur, &t);
             if r {
@@ -126,6 +155,9 @@ impl Supervisor {
             }
             r
         });
+        if let Some(o) = &self.shared.observer {
+            o(&stop);
+        }
     }
 
     async fn sample(&mut self, s: WrenchSample) {
@@ -260,6 +292,11 @@ impl Supervisor {
 
     /// Check a robot state: a finite TCP pose inside the envelope.
     async fn state(&self, s: &RobotState) {
+        *self
+            .shared
+            .last_state
+            .lock()
+            .unwrap_or_else(|e| e.into_inner()) = Some(*s);
         let p = s.actual_tcp_pose;
         let now = self.clock.now_ns();
         if !p.to_array().iter().all(|v| v.is_finite()) {
@@ -323,7 +360,12 @@ pub(super) fn spawn(
     let counters = shared.counters.clone();
     let forwarder = tokio::spawn(async move {
         while let Some(ev) = queued.recv().await {
-            if !super::streams::forward(&out, ev, &counters).await {
+            counters.ft_forwarder_waiting.store(true, Ordering::Release);
+            let sent = super::streams::forward(&out, ev, &counters).await;
+            counters
+                .ft_forwarder_waiting
+                .store(false, Ordering::Release);
+            if !sent {
                 return;
             }
         }

@@ -152,6 +152,9 @@ pub struct StreamCounters {
     /// still queued from before the first tare cannot trip the limit however late the
     /// stream task reads them.
     force_limit_untared: AtomicBool,
+    /// The F/T forwarder is handing a sample to the collector (set for the duration of the
+    /// hand-over: it stays set while the collector's input is full).
+    pub(super) ft_forwarder_waiting: AtomicBool,
     backpressure_warned: AtomicBool,
     recording_lost_warned: AtomicBool,
 }
@@ -257,6 +260,7 @@ impl Streams {
         settings: StreamSettings,
         out: mpsc::Sender<Event>,
         safety: Option<SafetyIo>,
+        observer: Option<safety::StopObserver>,
     ) -> Self {
         let (trip_tx, _) = watch::channel(None);
         let counters = Arc::new(StreamCounters::default());
@@ -265,6 +269,8 @@ impl Streams {
             counters: counters.clone(),
             stops: std::sync::Mutex::new(Vec::new()),
             extent: std::sync::Mutex::new(None),
+            observer,
+            last_state: std::sync::Mutex::new(None),
             last_beat_ns: AtomicU64::new(if safety.is_some() {
                 clock.now_ns()
             } else {
@@ -541,6 +547,7 @@ mod tests {
                 envelope: None,
             },
             out_tx,
+            None,
             None,
         );
         if untared_limit {

@@ -177,3 +177,88 @@ fn a_non_finite_or_outside_the_envelope_start_pose_is_refused_before_any_motion(
         );
     }
 }
+
+#[test]
+fn a_frozen_supervisor_starves_the_watchdog_and_the_controller_stops_the_arm() {
+    let _rig = common::one_rig_at_a_time();
+    let (config, indenter, plan) = setup();
+    let t = &plan.trajectories[0];
+    let shear = t
+        .stages
+        .iter()
+        .find(|s| s.name == StageName::Shear)
+        .unwrap();
+    let planned_shear_m =
+        pose::translation_distance(&shear.waypoints[0], shear.waypoints.last().unwrap());
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("rec");
+    // The supervisor hangs 200 ms into the shear; the arm keeps shearing at 1 mm/s until the
+    // controller's watchdog (10 Hz minimum: 100 ms without a heartbeat) stops the program. The
+    // watchdog runs in real time, so the clock runs at real speed here: 100 ms of clock time.
+    let fault: rig::simrig::SimFault = format!("supervisor-freeze@{}/shear+200", t.id)
+        .parse()
+        .unwrap();
+    let poses = Arc::new(Mutex::new(Vec::<(u64, Pose)>::new()));
+    let shear_start = Arc::new(Mutex::new(None::<u64>));
+    let tap: rig::run::collector::Tap = {
+        let (poses, shear_start) = (poses.clone(), shear_start.clone());
+        Arc::new(move |r: &Record| match r {
+            Record::Stage {
+                t_ns,
+                stage: StageName::Shear,
+            } => {
+                *shear_start.lock().unwrap() = Some(*t_ns);
+            }
+            Record::Pose { t_ns, pose } => poses.lock().unwrap().push((*t_ns, *pose)),
+            _ => {}
+        })
+    };
+    let opts = RunOptions {
+        limit: Some(2),
+        sim_faults: vec![fault],
+        tap: Some(tap),
+        speed_factor: 1.0,
+        ..RunOptions::new(&out)
+    };
+    let watchdog_s = opts.speed_factor / config.robot.watchdog_min_hz;
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let summary = rt.block_on(run(&config, &indenter, &opts)).unwrap();
+
+    // The controller stopped the program (the rig commanded no stop: its supervisor hung),
+    // and the run stopped because the supervisor no longer answers.
+    let (id, why) = summary
+        .failure
+        .clone()
+        .expect("the trajectory did not fail");
+    assert_eq!(id, t.id);
+    assert!(why.contains("control program stopped"), "{why}");
+    let stopped = summary.stopped.clone().unwrap_or_default();
+    assert!(stopped.contains("safety supervisor stopped"), "{stopped}");
+    assert!(
+        summary.safety_stops.is_empty(),
+        "{:?}",
+        summary.safety_stops
+    );
+    assert_eq!(summary.not_attempted, 1, "{}", summary.report());
+
+    // The arm stopped well short of the planned shear: it sheared for the 200 ms before the
+    // freeze plus the watchdog's 100 ms (0.3 mm at 1 mm/s; 0.1 s of margin for a busy host),
+    // not the planned 1 mm.
+    let t_shear = shear_start.lock().unwrap().expect("the shear never began");
+    let poses = poses.lock().unwrap();
+    let at_shear = poses
+        .iter()
+        .find(|(t, _)| *t >= t_shear)
+        .map(|(_, p)| *p)
+        .unwrap();
+    let last = poses.last().map(|(_, p)| *p).unwrap();
+    let travel = pose::translation_distance(&at_shear, &last);
+    let speed = config.plan.shear.speed_mm_s * 1e-3;
+    assert!(speed * (0.2 + watchdog_s + 0.1) < 0.5 * planned_shear_m);
+    assert!(
+        travel > 0.1 * speed && travel < speed * (0.2 + watchdog_s + 0.1),
+        "sheared {:.3} mm of the planned {:.3} mm before the controller stopped it",
+        travel * 1e3,
+        planned_shear_m * 1e3
+    );
+}
