@@ -19,8 +19,9 @@
 //!   on the lab network (use an SSH tunnel to watch from elsewhere).
 //! - A handshake whose `Origin` header names a page not served by this machine gets HTTP 403,
 //!   so a web page open in a browser on the rig's machine cannot read the run; clients
-//!   without `Origin` (the Foxglove desktop app, scripts) and `http(s)://localhost[:port]`,
-//!   `127.0.0.1`, `[::1]` pages are served.
+//!   without `Origin` (scripts, non-browser clients) and `http(s)://localhost[:port]`,
+//!   `127.0.0.1`, `[::1]` pages are served. (A hosted web app, such as Foxglove's own site,
+//!   is a foreign origin and refused.)
 //! - [`LiveLimits`] bounds what clients can make it hold: [`MAX_CLIENTS`] connections (one past
 //!   it gets an error `status` and a close frame), [`MAX_SUBSCRIPTIONS`] per client (the excess
 //!   of a `subscribe` is refused with an error `status`), [`MAX_MESSAGE_BYTES`] per incoming
@@ -323,8 +324,8 @@ fn check_handshake(req: &Request, mut resp: Response) -> Result<Response, ErrorR
     {
         let mut refusal = ErrorResponse::new(Some(format!(
             "The rig's live view serves pages of this machine only (http://localhost, \
-             127.0.0.1 or [::1]); Origin {bad:?} is refused. Open the Foxglove desktop app, \
-             or a Foxglove page served from localhost, on the rig's machine (or through an \
+             127.0.0.1 or [::1]); Origin {bad:?} is refused. Connect from a client that sends no \
+             Origin or from a page served by localhost, on the rig's machine (or through an \
              SSH tunnel).\n"
         )));
         *refusal.status_mut() = StatusCode::FORBIDDEN;

@@ -3,7 +3,7 @@
 //! A browser names the page that opens a WebSocket in the `Origin` header, and lets any page
 //! open one to any address: without this check a page from the lab network or the internet (or
 //! one reaching 127.0.0.1 through DNS rebinding) could read the rig's live data from a browser
-//! on the rig's machine. Clients that are not browser pages (the Foxglove desktop app, scripts)
+//! on the rig's machine. Clients that are not browser pages (scripts, most native clients)
 //! send no `Origin` and are served.
 
 use std::net::{Ipv4Addr, Ipv6Addr};
