@@ -12,29 +12,98 @@
 //! It never slows the run: [`LiveView::publish`] encodes a record only when somebody
 //! subscribes to its topic, once for all clients, and hands it to each client's bounded queue
 //! without waiting; a client too slow to keep up loses messages (counted in
-//! [`LiveStats::dropped`]), not the recording. Only loopback addresses are accepted: the rig
-//! serves no one on the lab network.
+//! [`LiveStats::dropped`]), not the recording.
+//!
+//! It is safe to leave running next to the robot:
+//! - Only loopback addresses are bound and only loopback peers served: the rig serves no one
+//!   on the lab network (use an SSH tunnel to watch from elsewhere).
+//! - A handshake whose `Origin` header names a page not served by this machine gets HTTP 403,
+//!   so a web page open in a browser on the rig's machine cannot read the run; clients
+//!   without `Origin` (scripts, non-browser clients) and `http(s)://localhost[:port]`,
+//!   `127.0.0.1`, `[::1]` pages are served. (A hosted web app, such as Foxglove's own site,
+//!   is a foreign origin and refused.)
+//! - [`LiveLimits`] bounds what clients can make it hold: [`MAX_CLIENTS`] connections (one past
+//!   it gets an error `status` and a close frame), [`MAX_SUBSCRIPTIONS`] per client (the excess
+//!   of a `subscribe` is refused with an error `status`), [`MAX_MESSAGE_BYTES`] per incoming
+//!   message (a bigger one closes that client), and [`HANDSHAKE_TIMEOUT`] to complete the
+//!   handshake (a connection that stalls in it is closed).
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
+use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
-use tokio_tungstenite::tungstenite::Message;
-use tokio_tungstenite::tungstenite::handshake::server::{Request, Response};
-use tokio_tungstenite::tungstenite::http::HeaderValue;
+use tokio_tungstenite::WebSocketStream;
+use tokio_tungstenite::tungstenite::handshake::server::{ErrorResponse, Request, Response};
+use tokio_tungstenite::tungstenite::http::{HeaderValue, StatusCode};
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
+use tokio_tungstenite::tungstenite::protocol::frame::CloseFrame;
+use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode;
+use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
 use crate::record::Record;
 use crate::record::channels::{CHANNELS, schema_text};
+
+mod origin;
+#[cfg(test)]
+mod tests;
 
 /// The WebSocket subprotocol of the Foxglove WebSocket protocol.
 pub const SUBPROTOCOL: &str = "foxglove.websocket.v1";
 /// Messages queued per client before new ones are dropped for it.
 const CLIENT_QUEUE: usize = 256;
+/// Most clients served at once. The Foxglove app opens one connection per window: eight leave
+/// room for a few windows and a script, and bound the work of each [`LiveView::publish`] (one
+/// queue push per subscription) and the memory the queues can hold (each up to
+/// `CLIENT_QUEUE` messages, image frames included).
+pub const MAX_CLIENTS: usize = 8;
+/// Most subscriptions one client holds. A recording has six channels and the Foxglove app
+/// subscribes to each once: 32 leave room for a client that subscribes twice, and bound how
+/// many frames one record becomes for one client.
+pub const MAX_SUBSCRIPTIONS: usize = 32;
+/// Largest incoming WebSocket message (and frame), bytes. Clients only send small JSON
+/// requests (a `subscribe` of [`MAX_SUBSCRIPTIONS`] subscriptions is under 2 KiB); the
+/// WebSocket library's own limit (64 MiB) would let one client make the server buffer that
+/// much.
+pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
+/// Time a TCP connection has to complete the WebSocket handshake, and a refused or closed
+/// client to answer the close. A local client needs milliseconds; 5 s cover a loaded host,
+/// and a connection that never completes the handshake does not hold a task and a socket for
+/// good.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Foxglove `status` levels.
+const STATUS_ERROR: u8 = 2;
+
+/// What a [`LiveView`] lets its clients make it hold (defaults: the constants above).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LiveLimits {
+    /// Clients served at once; one more gets an error `status` and a close frame.
+    pub max_clients: usize,
+    /// Subscriptions per client; a `subscribe` past it is refused with an error `status`.
+    pub max_subscriptions: usize,
+    /// Largest incoming message, bytes; a bigger one closes that client (close code 1009).
+    pub max_message_bytes: usize,
+    /// Time to complete the handshake (and to answer a close) before the socket is closed.
+    pub handshake_timeout: Duration,
+}
+
+impl Default for LiveLimits {
+    fn default() -> Self {
+        Self {
+            max_clients: MAX_CLIENTS,
+            max_subscriptions: MAX_SUBSCRIPTIONS,
+            max_message_bytes: MAX_MESSAGE_BYTES,
+            handshake_timeout: HANDSHAKE_TIMEOUT,
+        }
+    }
+}
 
 /// Counters of a [`LiveView`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -60,6 +129,8 @@ struct Shared {
 }
 
 impl Shared {
+    /// The client map. Its lock is taken only in synchronous code (never across an `.await`),
+    /// for map lookups and queue pushes: [`LiveView::publish`] waits on it for microseconds.
     fn clients(&self) -> std::sync::MutexGuard<'_, HashMap<u64, Client>> {
         self.clients.lock().unwrap_or_else(|p| p.into_inner())
     }
@@ -80,6 +151,18 @@ fn channel_id(topic: &str) -> Option<u32> {
         .map(|i| i as u32 + 1)
 }
 
+fn topic_of(rec: &Record) -> &'static str {
+    use crate::record::channels as c;
+    match rec {
+        Record::Frame { .. } => c::TOPIC_IMAGE,
+        Record::Wrench { .. } => c::TOPIC_WRENCH,
+        Record::Pose { .. } => c::TOPIC_POSE,
+        Record::Paired(_) => c::TOPIC_PAIRED,
+        Record::Stage { .. } => c::TOPIC_STAGE,
+        Record::Truth { .. } => c::TOPIC_TRUTH,
+    }
+}
+
 fn advertise() -> String {
     let channels: Vec<serde_json::Value> = CHANNELS
         .iter()
@@ -98,17 +181,51 @@ fn advertise() -> String {
     serde_json::json!({ "op": "advertise", "channels": channels }).to_string()
 }
 
+fn server_info() -> String {
+    serde_json::json!({
+        "op": "serverInfo",
+        "name": "TransForce rig",
+        "capabilities": [],
+        "supportedEncodings": [],
+        "metadata": {},
+        "sessionId": format!("{}", std::process::id()),
+    })
+    .to_string()
+}
+
+/// A Foxglove `status` message (the app shows it to the user).
+fn status(level: u8, message: &str) -> Message {
+    Message::Text(
+        serde_json::json!({ "op": "status", "level": level, "message": message })
+            .to_string()
+            .into(),
+    )
+}
+
 impl LiveView {
-    /// Binds `bind` (a loopback address only) and serves clients in the background.
+    /// Binds `bind` (a loopback address only) and serves clients in the background, with the
+    /// default [`LiveLimits`].
     pub async fn start(bind: SocketAddr) -> std::io::Result<LiveView> {
+        Self::start_with(bind, LiveLimits::default()).await
+    }
+
+    /// [`LiveView::start`] with other limits (every one at least 1).
+    pub async fn start_with(bind: SocketAddr, limits: LiveLimits) -> std::io::Result<LiveView> {
+        let invalid = |msg: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, msg);
         if !bind.ip().is_loopback() {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                format!(
-                    "the live view serves localhost only; {bind} is not a loopback address \
-                     (use 127.0.0.1:PORT and an SSH tunnel to watch from another machine)"
-                ),
-            ));
+            return Err(invalid(format!(
+                "the live view serves localhost only; {bind} is not a loopback address \
+                 (use 127.0.0.1:PORT and an SSH tunnel to watch from another machine)"
+            )));
+        }
+        if limits.max_clients == 0
+            || limits.max_subscriptions == 0
+            || limits.max_message_bytes == 0
+            || limits.handshake_timeout.is_zero()
+        {
+            return Err(invalid(format!(
+                "every live view limit must be at least 1 (got {limits:?})"
+            )));
         }
         let listener = TcpListener::bind(bind).await?;
         let addr = listener.local_addr()?;
@@ -118,11 +235,11 @@ impl LiveView {
             loop {
                 match listener.accept().await {
                     Ok((stream, peer)) => {
-                        tokio::spawn(serve(stream, peer, s.clone()));
+                        tokio::spawn(serve(stream, peer, s.clone(), limits));
                     }
                     Err(e) => {
                         tracing::warn!("live view: accept failed: {e}");
-                        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+                        tokio::time::sleep(Duration::from_millis(50)).await;
                     }
                 }
             }
@@ -135,48 +252,42 @@ impl LiveView {
         self.addr
     }
 
-    /// Sends `rec` to every client subscribed to its topic, without waiting.
+    /// Sends `rec` to every client subscribed to its topic. Never blocks the caller (the
+    /// recording path): it is synchronous, holds the client map's lock only to find the
+    /// subscriptions that want the record, encodes it (once) after releasing it, and hands a
+    /// frame to each client's bounded queue with `try_send`: a full queue drops the frame
+    /// (counted in [`LiveStats::dropped`]) instead of waiting for the client.
     pub fn publish(&self, rec: &Record) {
-        let mut clients = self.shared.clients();
-        if clients.is_empty() {
-            return;
-        }
-        // Which subscriptions want it; encode only if any.
-        let mut encoded: Option<(u32, u64, Vec<u8>)> = None;
-        let topic_of = |r: &Record| match r {
-            Record::Frame { .. } => crate::record::channels::TOPIC_IMAGE,
-            Record::Wrench { .. } => crate::record::channels::TOPIC_WRENCH,
-            Record::Pose { .. } => crate::record::channels::TOPIC_POSE,
-            Record::Paired(_) => crate::record::channels::TOPIC_PAIRED,
-            Record::Stage { .. } => crate::record::channels::TOPIC_STAGE,
-            Record::Truth { .. } => crate::record::channels::TOPIC_TRUTH,
-        };
         let Some(cid) = channel_id(topic_of(rec)) else {
             return;
         };
-        for client in clients.values_mut() {
-            for (&sub, &ch) in &client.subs {
-                if ch != cid {
-                    continue;
-                }
-                let (_, t_ns, body) = encoded.get_or_insert_with(|| {
-                    let (_, t, b) = rec.encode();
-                    (cid, t, b)
-                });
-                let mut frame = Vec::with_capacity(13 + body.len());
-                frame.push(0x01);
-                frame.extend_from_slice(&sub.to_le_bytes());
-                frame.extend_from_slice(&t_ns.to_le_bytes());
-                frame.extend_from_slice(body);
-                match client.tx.try_send(Message::Binary(frame.into())) {
-                    Ok(()) => {
-                        self.shared.sent.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(_) => {
-                        self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-                    }
-                }
-            }
+        let targets: Vec<(u32, mpsc::Sender<Message>)> = {
+            let clients = self.shared.clients();
+            clients
+                .values()
+                .flat_map(|c| {
+                    c.subs
+                        .iter()
+                        .filter(move |&(_, &ch)| ch == cid)
+                        .map(|(&sub, _)| (sub, c.tx.clone()))
+                })
+                .collect()
+        };
+        if targets.is_empty() {
+            return;
+        }
+        let (_, t_ns, body) = rec.encode();
+        for (sub, tx) in targets {
+            let mut frame = Vec::with_capacity(13 + body.len());
+            frame.push(0x01);
+            frame.extend_from_slice(&sub.to_le_bytes());
+            frame.extend_from_slice(&t_ns.to_le_bytes());
+            frame.extend_from_slice(&body);
+            let counter = match tx.try_send(Message::Binary(frame.into())) {
+                Ok(()) => &self.shared.sent,
+                Err(_) => &self.shared.dropped,
+            };
+            counter.fetch_add(1, Ordering::Relaxed);
         }
     }
 
@@ -202,101 +313,245 @@ impl Drop for LiveView {
     }
 }
 
-/// One client: handshake with the subprotocol, serverInfo + advertise, then its requests.
-async fn serve(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>) {
-    #[allow(clippy::result_large_err)] // the callback's signature is tungstenite's
-    let pick = |req: &Request, mut resp: Response| {
-        let offered = req
-            .headers()
-            .get("Sec-WebSocket-Protocol")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or_default();
-        if offered.split(',').any(|p| p.trim() == SUBPROTOCOL) {
-            resp.headers_mut().insert(
-                "Sec-WebSocket-Protocol",
-                HeaderValue::from_static(SUBPROTOCOL),
-            );
-        }
-        Ok(resp)
+/// The handshake's check: a local `Origin` or none (else HTTP 403), and the Foxglove
+/// subprotocol picked when offered.
+#[allow(clippy::result_large_err)] // the callback's signature is tungstenite's
+fn check_handshake(req: &Request, mut resp: Response) -> Result<Response, ErrorResponse> {
+    let origins: Vec<&HeaderValue> = req.headers().get_all("Origin").iter().collect();
+    if let Some(bad) = origins
+        .iter()
+        .find(|o| origins.len() > 1 || !o.to_str().is_ok_and(origin::is_local_origin))
+    {
+        let mut refusal = ErrorResponse::new(Some(format!(
+            "The rig's live view serves pages of this machine only (http://localhost, \
+             127.0.0.1 or [::1]); Origin {bad:?} is refused. Connect from a client that sends no \
+             Origin or from a page served by localhost, on the rig's machine (or through an \
+             SSH tunnel).\n"
+        )));
+        *refusal.status_mut() = StatusCode::FORBIDDEN;
+        return Err(refusal);
+    }
+    let offered = req
+        .headers()
+        .get("Sec-WebSocket-Protocol")
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or_default();
+    if offered.split(',').any(|p| p.trim() == SUBPROTOCOL) {
+        resp.headers_mut().insert(
+            "Sec-WebSocket-Protocol",
+            HeaderValue::from_static(SUBPROTOCOL),
+        );
+    }
+    Ok(resp)
+}
+
+/// Applies one client request to its subscriptions. Returns an error `status` for the client
+/// when subscriptions were refused. Synchronous, so the client map's lock it takes can never
+/// be held across an `.await`.
+fn handle_request(shared: &Shared, id: u64, text: &str, max_subs: usize) -> Option<Message> {
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(text) else {
+        tracing::debug!("live view: client {id} sent bad JSON");
+        return None;
     };
-    let ws = match tokio_tungstenite::accept_hdr_async(stream, pick).await {
-        Ok(ws) => ws,
-        Err(e) => {
-            tracing::debug!("live view: handshake with {peer} failed: {e}");
+    let mut clients = shared.clients();
+    let client = clients.get_mut(&id)?;
+    match v["op"].as_str() {
+        Some("subscribe") => {
+            let mut refused = Vec::new();
+            for s in v["subscriptions"].as_array().into_iter().flatten() {
+                let (Some(sub), Some(ch)) = (s["id"].as_u64(), s["channelId"].as_u64()) else {
+                    continue;
+                };
+                let (Ok(sub), Ok(ch)) = (u32::try_from(sub), u32::try_from(ch)) else {
+                    continue;
+                };
+                if !(1..=CHANNELS.len() as u32).contains(&ch) {
+                    continue;
+                }
+                if client.subs.len() < max_subs || client.subs.contains_key(&sub) {
+                    client.subs.insert(sub, ch);
+                } else {
+                    refused.push(sub);
+                }
+            }
+            if refused.is_empty() {
+                return None;
+            }
+            tracing::warn!(
+                "live view: client {id} is past {max_subs} subscriptions; refused {refused:?}"
+            );
+            Some(status(
+                STATUS_ERROR,
+                &format!(
+                    "The rig's live view allows at most {max_subs} subscriptions per client; \
+                     subscriptions {refused:?} were refused. Unsubscribe from topics you do \
+                     not watch (close panels), then subscribe again."
+                ),
+            ))
+        }
+        Some("unsubscribe") => {
+            for s in v["subscriptionIds"].as_array().into_iter().flatten() {
+                if let Some(sub) = s.as_u64().and_then(|s| u32::try_from(s).ok()) {
+                    client.subs.remove(&sub);
+                }
+            }
+            None
+        }
+        other => {
+            tracing::debug!("live view: client {id}: unsupported op {other:?}");
+            None
+        }
+    }
+}
+
+/// One client: handshake (within the time limit), admission (within the client limit),
+/// serverInfo + advertise, then its requests.
+async fn serve(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>, limits: LiveLimits) {
+    if !peer.ip().is_loopback() {
+        tracing::warn!("live view: refused {peer}, not a loopback peer");
+        return;
+    }
+    let config = WebSocketConfig::default()
+        .max_message_size(Some(limits.max_message_bytes))
+        .max_frame_size(Some(limits.max_message_bytes));
+    let handshake =
+        tokio_tungstenite::accept_hdr_async_with_config(stream, check_handshake, Some(config));
+    let ws = match tokio::time::timeout(limits.handshake_timeout, handshake).await {
+        Ok(Ok(ws)) => ws,
+        Ok(Err(e)) => {
+            tracing::info!("live view: handshake with {peer} refused or failed: {e}");
+            return;
+        }
+        Err(_) => {
+            tracing::info!(
+                "live view: {peer} did not complete the handshake within {:?}; closed",
+                limits.handshake_timeout
+            );
             return;
         }
     };
-    let (mut sink, mut source) = ws.split();
-    let (tx, mut rx) = mpsc::channel::<Message>(CLIENT_QUEUE);
-    let id = shared.next_client.fetch_add(1, Ordering::Relaxed);
-    let info = serde_json::json!({
-        "op": "serverInfo",
-        "name": "TransForce rig",
-        "capabilities": [],
-        "supportedEncodings": [],
-        "metadata": {},
-        "sessionId": format!("{}", std::process::id()),
-    })
-    .to_string();
-    if sink.send(Message::Text(info.into())).await.is_err()
-        || sink.send(Message::Text(advertise().into())).await.is_err()
+    let (tx, rx) = mpsc::channel::<Message>(CLIENT_QUEUE);
+    // The queue is new and empty: both fit.
+    if tx.try_send(Message::Text(server_info().into())).is_err()
+        || tx.try_send(Message::Text(advertise().into())).is_err()
     {
         return;
     }
-    shared.clients().insert(
-        id,
-        Client {
-            tx,
-            subs: HashMap::new(),
-        },
-    );
-    tracing::info!("live view: {peer} connected");
-    let writer = tokio::spawn(async move {
-        while let Some(m) = rx.recv().await {
-            if sink.send(m).await.is_err() {
-                break;
-            }
+    let id = shared.next_client.fetch_add(1, Ordering::Relaxed);
+    let admitted = {
+        let mut clients = shared.clients();
+        let room = clients.len() < limits.max_clients;
+        if room {
+            clients.insert(
+                id,
+                Client {
+                    tx,
+                    subs: HashMap::new(),
+                },
+            );
         }
-        let _ = sink.close().await;
-    });
+        room
+    };
+    if !admitted {
+        refuse_client(ws, peer, limits).await;
+        return;
+    }
+    tracing::info!("live view: {peer} connected");
+    let (sink, mut source) = ws.split();
+    let (close_tx, close_rx) = oneshot::channel();
+    let mut close_tx = Some(close_tx);
+    let mut writer = tokio::spawn(write_loop(sink, rx, close_rx));
     while let Some(msg) = source.next().await {
         let text = match msg {
             Ok(Message::Text(t)) => t,
-            Ok(Message::Close(_)) | Err(_) => break,
+            Ok(Message::Close(_)) => break,
+            Err(WsError::Capacity(e)) => {
+                tracing::warn!(
+                    "live view: {peer} sent more than {} bytes at once ({e}); closing it",
+                    limits.max_message_bytes
+                );
+                if let Some(close) = close_tx.take() {
+                    let _ = close.send(CloseFrame {
+                        code: CloseCode::Size,
+                        reason: "message too big".into(),
+                    });
+                }
+                break;
+            }
+            Err(e) => {
+                tracing::debug!("live view: {peer}: {e}");
+                break;
+            }
             Ok(_) => continue,
         };
-        let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
-            tracing::debug!("live view: {peer} sent bad JSON");
-            continue;
-        };
-        let mut clients = shared.clients();
-        let Some(client) = clients.get_mut(&id) else {
-            break;
-        };
-        match v["op"].as_str() {
-            Some("subscribe") => {
-                for s in v["subscriptions"].as_array().into_iter().flatten() {
-                    let (Some(sub), Some(ch)) = (s["id"].as_u64(), s["channelId"].as_u64()) else {
-                        continue;
-                    };
-                    if let (Ok(sub), Ok(ch)) = (u32::try_from(sub), u32::try_from(ch))
-                        && (1..=CHANNELS.len() as u32).contains(&ch)
-                    {
-                        client.subs.insert(sub, ch);
-                    }
-                }
+        if let Some(reply) = handle_request(&shared, id, &text, limits.max_subscriptions) {
+            // Through the client's queue, after what is queued for it; a full queue drops it.
+            if let Some(Err(e)) = shared.clients().get(&id).map(|c| c.tx.try_send(reply)) {
+                tracing::debug!("live view: status for {peer} not sent: {e}");
             }
-            Some("unsubscribe") => {
-                for s in v["subscriptionIds"].as_array().into_iter().flatten() {
-                    if let Some(sub) = s.as_u64().and_then(|s| u32::try_from(s).ok()) {
-                        client.subs.remove(&sub);
-                    }
-                }
-            }
-            other => tracing::debug!("live view: {peer}: unsupported op {other:?}"),
         }
     }
     shared.clients().remove(&id);
+    if close_tx.is_none() {
+        // A close frame is due: give the writer the handshake's time to send it.
+        let _ = tokio::time::timeout(limits.handshake_timeout, &mut writer).await;
+    }
     writer.abort();
     tracing::info!("live view: {peer} disconnected");
+}
+
+/// Sends a client's queue to it until the queue ends (the client was removed) or a close frame
+/// is due, then closes the connection.
+async fn write_loop(
+    mut sink: SplitSink<WebSocketStream<TcpStream>, Message>,
+    mut rx: mpsc::Receiver<Message>,
+    mut close: oneshot::Receiver<CloseFrame>,
+) {
+    loop {
+        tokio::select! {
+            biased;
+            frame = &mut close => {
+                if let Ok(frame) = frame {
+                    let _ = sink.send(Message::Close(Some(frame))).await;
+                }
+                break;
+            }
+            m = rx.recv() => match m {
+                Some(m) => {
+                    if sink.send(m).await.is_err() {
+                        break;
+                    }
+                }
+                None => break,
+            },
+        }
+    }
+    let _ = sink.close().await;
+}
+
+/// A client past the limit: an error `status` saying so, a close frame (1013, try again
+/// later), and the client's close reply awaited within the handshake time.
+async fn refuse_client(mut ws: WebSocketStream<TcpStream>, peer: SocketAddr, limits: LiveLimits) {
+    tracing::warn!(
+        "live view: refused {peer}: {} clients are connected already",
+        limits.max_clients
+    );
+    let message = format!(
+        "The rig's live view serves at most {} clients at once and all are connected. Close \
+         another connection to the rig (a Foxglove window or tab), then reconnect.",
+        limits.max_clients
+    );
+    let refuse = async {
+        ws.send(status(STATUS_ERROR, &message)).await?;
+        ws.close(Some(CloseFrame {
+            code: CloseCode::Again,
+            reason: "too many clients".into(),
+        }))
+        .await?;
+        while let Some(m) = ws.next().await {
+            m?;
+        }
+        Ok::<(), WsError>(())
+    };
+    let _ = tokio::time::timeout(limits.handshake_timeout, refuse).await;
 }

@@ -370,49 +370,7 @@ pub fn translate(
         iterations,
         last,
     };
-    let tdir = out.join("translator");
-    fs::create_dir_all(&tdir)?;
-    for (name, r) in [
-        (
-            "g_s2t",
-            gan.gens
-                .s2t
-                .clone()
-                .save_into(&mut SafetensorsStore::from_file(
-                    tdir.join("g_s2t.safetensors"),
-                )),
-        ),
-        (
-            "g_t2s",
-            gan.gens
-                .t2s
-                .clone()
-                .save_into(&mut SafetensorsStore::from_file(
-                    tdir.join("g_t2s.safetensors"),
-                )),
-        ),
-        (
-            "d_t",
-            gan.discs
-                .t
-                .clone()
-                .save_into(&mut SafetensorsStore::from_file(
-                    tdir.join("d_t.safetensors"),
-                )),
-        ),
-        (
-            "d_s",
-            gan.discs
-                .s
-                .clone()
-                .save_into(&mut SafetensorsStore::from_file(
-                    tdir.join("d_s.safetensors"),
-                )),
-        ),
-    ] {
-        r.map_err(|e| anyhow::anyhow!("cannot write {name}: {e:?}"))?;
-    }
-    crate::durable::write_atomic(&tdir.join(INFO), &serde_json::to_vec_pretty(&info)?)?;
+    save_translator(&out.join("translator"), &gan, &info)?;
     fs::write(out.join("translate-log.csv"), log)?;
 
     // Î_t: every source frame through G_s, with its source force.
@@ -437,6 +395,27 @@ pub fn translate(
     let set = source.with_images(spec, trajs)?;
     super::data::write_prepared(&out.join("translated"), &set, "translated")?;
     Ok(Translated { set, info })
+}
+
+/// Writes the translator into `tdir`: its four networks and description, replaced as one
+/// set, so a crash leaves the previous translator whole, never networks of two trainings.
+fn save_translator(tdir: &Path, gan: &CycleGan, info: &TranslatorInfo) -> anyhow::Result<()> {
+    fn save(dir: &Path, name: &str, net: &impl ModuleSnapshot) -> anyhow::Result<()> {
+        let path = dir.join(format!("{name}.safetensors"));
+        net.save_into(&mut SafetensorsStore::from_file(path))
+            .map_err(|e| anyhow::anyhow!("cannot write {name}: {e:?}"))
+    }
+    fs::create_dir_all(tdir)?;
+    crate::durable::FileSet::new(tdir, INFO)
+        .replace(|dir| {
+            save(dir, "g_s2t", &gan.gens.s2t)?;
+            save(dir, "g_t2s", &gan.gens.t2s)?;
+            save(dir, "d_t", &gan.discs.t)?;
+            save(dir, "d_s", &gan.discs.s)?;
+            fs::write(dir.join(INFO), serde_json::to_vec_pretty(info)?)?;
+            Ok(())
+        })
+        .with_context(|| format!("cannot write the translator into {}", tdir.display()))
 }
 
 /// The device without autodiff, for inference.
@@ -482,4 +461,93 @@ fn sample_grid(
         );
     }
     Ok(grid)
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::{ModuleVisitor, Param};
+
+    use super::*;
+
+    fn params<M: Module>(m: &M) -> Vec<f32> {
+        struct Collect(Vec<f32>);
+        impl ModuleVisitor for Collect {
+            fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+                self.0.extend(
+                    p.val()
+                        .into_data()
+                        .convert::<f32>()
+                        .try_to_vec::<f32>()
+                        .unwrap(),
+                );
+            }
+        }
+        let mut c = Collect(Vec::new());
+        m.visit(&mut c);
+        c.0
+    }
+
+    #[test]
+    fn the_translator_is_written_whole_over_a_crashed_write() {
+        let cfg = TranslateConfig {
+            shape: GanShape {
+                ngf: 4,
+                ndf: 4,
+                res_blocks: 1,
+                disc_layers: 2,
+            },
+            ..TranslateConfig::default()
+        };
+        let gan = CycleGan::new(&cfg);
+        let info = TranslatorInfo {
+            format: "rig-translator-1".into(),
+            spec: ImageSpec {
+                width: 16,
+                height: 16,
+                modality: crate::train::modality::Modality::RgbMarker,
+            },
+            config: cfg.clone(),
+            iterations: 3,
+            last: Losses::default(),
+        };
+        let tmp = tempfile::tempdir().unwrap();
+        let tdir = tmp.path().join("translator");
+        // A write a crash cut short: a staging directory with a torn generator.
+        let staging = tdir.join(crate::durable::FileSet::STAGING);
+        fs::create_dir_all(&staging).unwrap();
+        fs::write(staging.join("g_s2t.safetensors"), b"torn").unwrap();
+
+        save_translator(&tdir, &gan, &info).unwrap();
+        let mut names: Vec<String> = fs::read_dir(&tdir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(
+            names,
+            [
+                "d_s.safetensors",
+                "d_t.safetensors",
+                "g_s2t.safetensors",
+                "g_t2s.safetensors",
+                INFO
+            ]
+        );
+        let read: TranslatorInfo =
+            serde_json::from_slice(&fs::read(tdir.join(INFO)).unwrap()).unwrap();
+        assert_eq!(read, info);
+        let mut g = Generator::new(&cfg.shape, &gan.dev);
+        g.load_from(&mut SafetensorsStore::from_file(
+            tdir.join("g_s2t.safetensors"),
+        ))
+        .unwrap();
+        let want = params(&gan.gens.s2t);
+        assert!(!want.is_empty());
+        assert_eq!(params(&g), want);
+        assert_ne!(
+            params(&gan.gens.t2s),
+            want,
+            "two generators with the same weights"
+        );
+    }
 }

@@ -314,6 +314,8 @@ pub fn train(
         trained_on: String::new(),
         last_loss: f64::NAN,
     };
+    // A checkpoint a crash interrupted: an incomplete one is dropped, a complete one installed.
+    checkpoint_set(out).recover()?;
     if resume && out.join(MODEL_INFO).is_file() {
         let old = read_info(out)?;
         if old.shape != shape || old.spec != spec {
@@ -438,34 +440,48 @@ pub fn train(
     })
 }
 
+/// The checkpoint files of `dir` as one set: replaced whole after each epoch, the
+/// description ([`MODEL_INFO`]) last, so a crash never leaves files of two epochs (see
+/// [`crate::durable::FileSet`]).
+fn checkpoint_set(dir: &Path) -> crate::durable::FileSet<'_> {
+    crate::durable::FileSet::new(dir, MODEL_INFO)
+}
+
+/// Replaces the checkpoint in `out` by this one: weights (safetensors and burn's format),
+/// optimiser state and description, written, fsynced and installed as one set.
 fn save_checkpoint(
     out: &Path,
     net: &ForceNet,
     optim: &ModuleOptimizer,
     info: &ModelInfo,
 ) -> anyhow::Result<()> {
-    // Written beside, then renamed: a crash leaves the previous checkpoint whole.
-    let tmp_w = out.join(format!("{WEIGHTS}.partial"));
-    let _ = fs::remove_file(&tmp_w);
-    net.save_into(&mut SafetensorsStore::from_file(&tmp_w))
+    checkpoint_set(out)
+        .replace(|dir| write_checkpoint(dir, net, optim, info))
+        .with_context(|| format!("cannot write the checkpoint of epoch {}", info.epochs_done))
+}
+
+/// The checkpoint's files, written into `dir` (a staging directory).
+fn write_checkpoint(
+    dir: &Path,
+    net: &ForceNet,
+    optim: &ModuleOptimizer,
+    info: &ModelInfo,
+) -> anyhow::Result<()> {
+    net.save_into(&mut SafetensorsStore::from_file(dir.join(WEIGHTS)))
         .map_err(|e| anyhow::anyhow!("cannot write the weights: {e:?}"))?;
-    let tmp_r = out.join(format!("{RESUME_WEIGHTS}.partial"));
-    let _ = fs::remove_file(&tmp_r);
-    net.save_into(&mut BurnpackStore::from_file(&tmp_r))
+    net.save_into(&mut BurnpackStore::from_file(dir.join(RESUME_WEIGHTS)))
         .map_err(|e| anyhow::anyhow!("cannot write the resume weights: {e:?}"))?;
-    let tmp_o = out.join(format!("{OPTIM}.partial"));
     optim
-        .save(&tmp_o)
+        .save(dir.join(OPTIM))
         .map_err(|e| anyhow::anyhow!("cannot write the optimiser state: {e:?}"))?;
-    fs::rename(&tmp_w, out.join(WEIGHTS))?;
-    fs::rename(&tmp_r, out.join(RESUME_WEIGHTS))?;
-    fs::rename(&tmp_o, out.join(OPTIM))?;
-    crate::durable::write_atomic(&out.join(MODEL_INFO), &serde_json::to_vec_pretty(info)?)?;
+    fs::write(dir.join(MODEL_INFO), serde_json::to_vec_pretty(info)?)?;
     Ok(())
 }
 
+/// The description of the model in `dir` (of the checkpoint a crash left half installed, if
+/// one did: the one whose files are read).
 pub fn read_info(dir: &Path) -> anyhow::Result<ModelInfo> {
-    let p = dir.join(MODEL_INFO);
+    let p = checkpoint_set(dir).path(MODEL_INFO);
     let text =
         fs::read(&p).with_context(|| format!("{} is not a model directory", dir.display()))?;
     serde_json::from_slice(&text)
@@ -473,14 +489,17 @@ pub fn read_info(dir: &Path) -> anyhow::Result<ModelInfo> {
 }
 
 impl ForceModel {
+    /// The model of a model directory, ready to predict.
     pub fn load(dir: &Path) -> anyhow::Result<Self> {
         let info = read_info(dir)?;
         let dev = device();
         // The initial weights are overwritten, but building them draws from the shared
         // generator: under the lock, so a training seeding it in another thread is undisturbed.
         let mut net = build_networks(&dev, None, || ForceNet::new(&info.shape, &dev));
-        net.load_from(&mut SafetensorsStore::from_file(dir.join(WEIGHTS)))
-            .map_err(|e| anyhow::anyhow!("cannot load {}: {e:?}", dir.join(WEIGHTS).display()))?;
+        // Read through the checkpoint set: whole even if a crash interrupted its installation.
+        let weights = checkpoint_set(dir).path(WEIGHTS);
+        net.load_from(&mut SafetensorsStore::from_file(&weights))
+            .map_err(|e| anyhow::anyhow!("cannot load {}: {e:?}", weights.display()))?;
         Ok(Self { info, net, dev })
     }
 
@@ -607,5 +626,124 @@ mod tests {
             "seed 7 gave other weights the second time"
         );
         assert!(w_first != w_other, "seeds 7 and 8 gave the same weights");
+    }
+
+    /// A small network of `seed`, the optimiser and the description of its epoch `epoch`.
+    fn checkpoint(seed: u64, epoch: usize) -> (ForceNet, ModuleOptimizer, ModelInfo) {
+        let spec = ImageSpec {
+            width: 32,
+            height: 24,
+            modality: crate::train::modality::Modality::RgbMarker,
+        };
+        let config = ForceConfig {
+            width: 4,
+            ..ForceConfig::default()
+        };
+        let shape = shape_for(&config, &spec);
+        let (_, net) = initial_network(&shape, &device(), seed);
+        let info = ModelInfo {
+            format: "rig-force-model-1".into(),
+            method: "test".into(),
+            spec,
+            shape,
+            range: ForceRange::from_bounds([(-1.0, 1.0); 3]),
+            config,
+            epochs_done: epoch,
+            trained_on: String::new(),
+            last_loss: 0.5,
+        };
+        (net, AdamConfig::new().init(), info)
+    }
+
+    /// The weights burn's resume file in `dir` holds.
+    fn resume_weights(dir: &Path, like: &ForceNet) -> Vec<f32> {
+        let mut net = like.clone();
+        net.load_from(&mut BurnpackStore::from_file(dir.join(RESUME_WEIGHTS)))
+            .unwrap();
+        weights(&net)
+    }
+
+    fn entries(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn a_checkpoint_is_installed_whole_and_loads_back() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        let (old, optim, info) = checkpoint(3, 1);
+        save_checkpoint(dir, &old, &optim, &info).unwrap();
+        let (net, optim, info) = checkpoint(4, 2);
+        save_checkpoint(dir, &net, &optim, &info).unwrap();
+        // The four files and nothing else (no staging left).
+        let mut want: Vec<String> = checkpoint_files(dir)
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        want.sort();
+        assert_eq!(entries(dir), want);
+
+        let model = ForceModel::load(dir).unwrap();
+        assert_eq!(model.info, info);
+        let w = weights(&net);
+        assert_ne!(w, weights(&old), "seeds 3 and 4 gave the same weights");
+        assert_eq!(weights(&model.net), w);
+        assert_eq!(resume_weights(dir, &net), w);
+    }
+
+    #[test]
+    fn a_checkpoint_a_crash_left_half_written_is_ignored_and_removed() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        let (net, optim, info) = checkpoint(3, 1);
+        save_checkpoint(dir, &net, &optim, &info).unwrap();
+        // The crash: epoch 2 half written into the staging directory (its description
+        // already there, its weights cut short).
+        let (newer, optim2, info2) = checkpoint(4, 2);
+        let staging = dir.join(crate::durable::FileSet::STAGING);
+        fs::create_dir(&staging).unwrap();
+        write_checkpoint(&staging, &newer, &optim2, &info2).unwrap();
+        let full = fs::read(staging.join(WEIGHTS)).unwrap();
+        fs::write(staging.join(WEIGHTS), &full[..full.len() / 2]).unwrap();
+
+        let model = ForceModel::load(dir).unwrap();
+        assert_eq!(model.info.epochs_done, 1);
+        assert_eq!(weights(&model.net), weights(&net));
+        // What a training does first: the leftover goes, the checkpoint of epoch 1 stays.
+        checkpoint_set(dir).recover().unwrap();
+        assert!(!staging.exists());
+        assert_eq!(read_info(dir).unwrap().epochs_done, 1);
+        assert_eq!(resume_weights(dir, &net), weights(&net));
+    }
+
+    #[test]
+    fn a_checkpoint_a_crash_left_half_installed_is_read_whole_and_completed() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        let (old, optim, info) = checkpoint(3, 1);
+        save_checkpoint(dir, &old, &optim, &info).unwrap();
+        // The crash: epoch 2 complete and committed, only its weights moved into place.
+        let (net, optim, info) = checkpoint(4, 2);
+        let set = checkpoint_set(dir);
+        set.stage(|d| write_checkpoint(d, &net, &optim, &info))
+            .unwrap();
+        let ready = dir.join(crate::durable::FileSet::READY);
+        fs::rename(ready.join(WEIGHTS), dir.join(WEIGHTS)).unwrap();
+
+        // Read as it is: epoch 2 throughout.
+        let model = ForceModel::load(dir).unwrap();
+        assert_eq!(model.info.epochs_done, 2);
+        assert_eq!(weights(&model.net), weights(&net));
+        // Recovered: epoch 2 installed, resume weights included.
+        set.recover().unwrap();
+        assert!(!ready.exists());
+        assert_eq!(read_info(dir).unwrap(), info);
+        assert_eq!(resume_weights(dir, &net), weights(&net));
+        assert_ne!(weights(&net), weights(&old));
     }
 }
