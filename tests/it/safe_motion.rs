@@ -262,3 +262,90 @@ fn a_frozen_supervisor_starves_the_watchdog_and_the_controller_stops_the_arm() {
         planned_shear_m * 1e3
     );
 }
+
+/// Force limit for the blocked-recorder drill, N: crossed early in the deepest press of the
+/// cone (a few N at 0.8 mm on the simulated gel).
+const DRILL_FORCE_LIMIT_N: f64 = 1.0;
+
+#[test]
+fn a_blocked_recorder_does_not_delay_the_stop_on_a_force_limit_crossing() {
+    let _rig = common::one_rig_at_a_time();
+    let tmp = tempfile::tempdir().unwrap();
+    // The deepest layer, pressed slowly (0.25 mm/s: 11 s from the approach height to 0.8 mm),
+    // so the stalled disk has backed the recording up well before the force crosses the limit.
+    let cfg = common::edited_sim_config(
+        tmp.path(),
+        "blocked.toml",
+        &[
+            ("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.8]"),
+            (
+                "down = { speed_mm_s = 1.0, accel_mm_s2 = 10.0 }",
+                "down = { speed_mm_s = 0.25, accel_mm_s2 = 10.0 }",
+            ),
+            (
+                "max_force_n = 20.0",
+                &format!("max_force_n = {DRILL_FORCE_LIMIT_N}"),
+            ),
+        ],
+    );
+    let config = RigConfig::load(&cfg).unwrap();
+    let indenter = Indenter::load("cone").unwrap();
+    let out = tmp.path().join("rec");
+    // The writer is stalled from the start; the first stop opens it again (so the run can
+    // finish its bookkeeping), after noting whether the recording was backed up by then.
+    let gate = rig::record::WriterGate::new();
+    gate.close();
+    let observer: rig::run::safety::StopObserver = {
+        let gate = gate.clone();
+        Arc::new(move |_| gate.open())
+    };
+    let opts = RunOptions {
+        limit: Some(1),
+        recorder_gate: Some(gate),
+        on_safety_stop: Some(observer),
+        ..RunOptions::new(&out)
+    };
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let summary = rt.block_on(run(&config, &indenter, &opts)).unwrap();
+
+    let stop = summary
+        .safety_stops
+        .first()
+        .unwrap_or_else(|| panic!("no safety stop: {}", summary.report()));
+    assert!(
+        matches!(stop.trip, rig::run::streams::Trip::ForceLimit { limit_n, .. } if limit_n == DRILL_FORCE_LIMIT_N),
+        "{stop:?}"
+    );
+    assert!(
+        stop.recording_backed_up,
+        "the recording was not backed up when the force crossed the limit: the drill tested \
+         nothing ({stop:?})"
+    );
+    let commanded = stop.commanded_ns.expect("the stop request was not written");
+    assert!(commanded >= stop.detected_ns);
+    // The spec: at most 4 ms of simulated time from the crossing sample to the stop command
+    // reaching the controller.
+    let reached = stop
+        .reached_controller_ns
+        .expect("the controller never saw the stop request");
+    let latency_ms = (reached.saturating_sub(stop.detected_ns)) as f64 * 1e-6;
+    assert!(latency_ms <= 4.0, "stop reached the controller {latency_ms:.3} ms after the crossing");
+
+    // The arm's travel from the crossing to rest (where the retract began) is what pressing on
+    // at the indentation speed for that latency (plus the state's age, one 2 ms RTDE period)
+    // and then decelerating at the configured stop deceleration allow.
+    let at_crossing = stop.tcp_at_detection.expect("no robot state at the crossing");
+    let rest = summary.retracts.first().expect("no retract after the stop").from;
+    let travel = pose::translation_distance(&at_crossing, &rest);
+    let v = config.plan.down.speed_mm_s * 1e-3;
+    let decel = rig::robot::RobotOptions::default().stop_accel_m_s2;
+    let allowed = v * (latency_ms * 1e-3 + 2e-3) + v * v / (2.0 * decel) + 1e-6;
+    assert!(
+        travel <= allowed,
+        "the arm travelled {:.4} mm after the crossing; at most {:.4} mm allowed",
+        travel * 1e3,
+        allowed * 1e3
+    );
+    let (id, why) = summary.failure.clone().unwrap();
+    assert!(why.contains("force limit"), "{id}: {why}");
+}
