@@ -42,6 +42,27 @@ use super::{Robot, RuntimeError};
 pub const STATEMENT_BUDGET: u32 = 10_000;
 /// Nested user-function calls per thread.
 pub const MAX_CALL_DEPTH: usize = 200;
+/// Threads alive at once (main included).
+pub const MAX_THREADS: usize = 64;
+/// Values in one list, nested lists' values included.
+pub const MAX_LIST_VALUES: usize = 10_000;
+
+/// How many values `v` holds, counting nested lists' values, stopping past `limit`.
+fn weight(v: &Value, limit: usize) -> usize {
+    match v {
+        Value::List(items) => {
+            let mut n = 1;
+            for i in items {
+                n += weight(i, limit);
+                if n > limit {
+                    break;
+                }
+            }
+            n
+        }
+        _ => 1,
+    }
+}
 
 /// What a blocked thread waits for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -260,6 +281,9 @@ impl Interpreter {
                         fail!("variable `{name}` is not defined");
                     };
                     match value::set_index(&old, &i, v) {
+                        Ok(new) if weight(&new, MAX_LIST_VALUES) > MAX_LIST_VALUES => {
+                            fail!("a list of more than {MAX_LIST_VALUES} values");
+                        }
                         Ok(new) => self.store(th, name, *scope, new),
                         Err(m) => fail!("{m}"),
                     }
@@ -275,7 +299,11 @@ impl Interpreter {
                 Op::MakeList(n) => {
                     let at = th.stack.len().saturating_sub(*n);
                     let items = th.stack.split_off(at);
-                    th.stack.push(Value::List(items));
+                    let list = Value::List(items);
+                    if weight(&list, MAX_LIST_VALUES) > MAX_LIST_VALUES {
+                        fail!("a list of more than {MAX_LIST_VALUES} values");
+                    }
+                    th.stack.push(list);
                 }
                 Op::MakePose => {
                     let at = th.stack.len().saturating_sub(6);
@@ -379,6 +407,10 @@ impl Interpreter {
                 }
                 Op::Run(func) => {
                     let f = &code.funcs[*func];
+                    // This thread is out of the list while it runs: count it.
+                    if self.threads.iter().filter(|t| t.alive).count() + 1 >= MAX_THREADS {
+                        fail!("more than {MAX_THREADS} threads at once");
+                    }
                     let id = self.next_id;
                     self.next_id = self.next_id.wrapping_add(1).max(1);
                     self.threads.push(Thread {

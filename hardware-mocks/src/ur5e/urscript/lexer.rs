@@ -151,7 +151,8 @@ pub fn lex(text: &str) -> Result<Vec<Token>, ScriptError> {
             }
         }
     }
-    if out.last().is_some_and(|t| t.kind != Tok::Newline) {
+    if let Some(last) = out.last().filter(|t| t.kind != Tok::Newline) {
+        let line = last.line;
         out.push(Token {
             kind: Tok::Newline,
             line,

@@ -44,6 +44,8 @@ pub mod value;
 mod tests;
 #[cfg(test)]
 mod tests_motion;
+#[cfg(test)]
+mod tests_rig;
 
 use std::sync::Arc;
 
