@@ -250,9 +250,7 @@ impl SimRig {
             clock.clone(),
             // The pose the controller had at the time asked for (due ticks processed first),
             // so a step, on time or late, sees the contact of its own instant.
-            Arc::new(move |t_ns| {
-                src.tip_pose_at(t_ns).unwrap_or_else(|| src.tip_pose_now())
-            }),
+            Arc::new(move |t_ns| src.tip_pose_at(t_ns).unwrap_or_else(|| src.tip_pose_now())),
         )));
 
         let fs = config.force_sensor.as_ref();

@@ -29,8 +29,7 @@
 use std::collections::{HashMap, VecDeque};
 
 use rig_core::control::{
-    self, motion_allowed, robot_mode, robot_mode_name, runtime_state, safety_mode,
-    safety_mode_name,
+    self, motion_allowed, robot_mode, robot_mode_name, runtime_state, safety_mode, safety_mode_name,
 };
 use rig_core::pose::{self, Pose};
 use rig_core::rtde::Value;

@@ -21,9 +21,7 @@ use tokio::io::AsyncReadExt;
 use tokio::net::{TcpListener, TcpStream};
 
 use super::shared::{Shared, accept_loop, spawn_until_shutdown};
-pub use super::urscript::{
-    Program, ScriptError, Watchdog, WatchdogAction, is_closed, is_complete,
-};
+pub use super::urscript::{Program, ScriptError, Watchdog, WatchdogAction, is_closed, is_complete};
 
 /// How long a closed script of definitions only waits for more text (real time).
 pub const QUIET: Duration = Duration::from_millis(50);

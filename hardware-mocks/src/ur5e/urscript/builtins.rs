@@ -113,7 +113,11 @@ const TABLE: &[(&str, Builtin, &[(&str, Dflt)])] = &[
         &[("p_from", Required), ("p_from_to", Required)],
     ),
     ("pose_inv", B::PoseInv, &[("p_from", Required)]),
-    ("pose_add", B::PoseAdd, &[("p_1", Required), ("p_2", Required)]),
+    (
+        "pose_add",
+        B::PoseAdd,
+        &[("p_1", Required), ("p_2", Required)],
+    ),
     (
         "pose_sub",
         B::PoseSub,
@@ -196,7 +200,11 @@ pub fn check_call<'k>(
 /// The full argument list, in parameter order, defaults filled in. `values` holds the
 /// positional arguments, then one value per keyword in `keywords`.
 fn bind(f: Builtin, mut values: Vec<Value>, keywords: &[String]) -> Result<Vec<Value>, String> {
-    check_call(f, values.len() - keywords.len(), keywords.iter().map(String::as_str))?;
+    check_call(
+        f,
+        values.len() - keywords.len(),
+        keywords.iter().map(String::as_str),
+    )?;
     let (_, _, params) = entry(f);
     let kw_values = values.split_off(values.len() - keywords.len());
     let mut out: Vec<Option<Value>> = values.into_iter().map(Some).collect();
@@ -317,7 +325,12 @@ pub fn call(
                         "movel to joint positions is not supported (no kinematics model)".into(),
                     );
                 }
-                other => return Err(format!("type error: movel needs a pose, got {}", other.type_name())),
+                other => {
+                    return Err(format!(
+                        "type error: movel needs a pose, got {}",
+                        other.type_name()
+                    ));
+                }
             };
             let (acc, vel) = (num(&a[1], "a")?, num(&a[2], "v")?);
             let (t, r) = (num(&a[3], "t")?, num(&a[4], "r")?);
@@ -414,7 +427,9 @@ pub fn call(
             }
             let min_hz = num(&a[1], "min_frequency")?;
             if !(min_hz.is_finite() && min_hz >= 0.0) {
-                return Err(format!("min_frequency must be finite and ≥ 0, got {min_hz}"));
+                return Err(format!(
+                    "min_frequency must be finite and ≥ 0, got {min_hz}"
+                ));
             }
             let action = match &a[2] {
                 Value::Str(s) if s == "ignore" => WatchdogAction::Ignore,

@@ -120,7 +120,10 @@ pub fn compile(top: &[Stmt]) -> Result<Code, ScriptError> {
         };
         let f = &c.funcs[first];
         if !f.params.is_empty() {
-            return Err(syntax(f.line, format!("program `{}` takes parameters", f.name)));
+            return Err(syntax(
+                f.line,
+                format!("program `{}` takes parameters", f.name),
+            ));
         }
         let line = f.line;
         c.ops.push(Op::Line(line));
@@ -364,7 +367,9 @@ impl<'a> Compiler<'a> {
                     if !kwargs.is_empty() {
                         return Err(syntax(
                             line,
-                            format!("keyword arguments to user function `{name}` are not supported"),
+                            format!(
+                                "keyword arguments to user function `{name}` are not supported"
+                            ),
                         ));
                     }
                     if args.len() != func.params.len() {

@@ -312,10 +312,14 @@ impl Interpreter {
                     for (slot, v) in arr.iter_mut().zip(&items) {
                         match v.as_f64() {
                             Some(x) => *slot = x,
-                            None => fail!("type error: a pose element must be a number, got {}", v.type_name()),
+                            None => fail!(
+                                "type error: a pose element must be a number, got {}",
+                                v.type_name()
+                            ),
                         }
                     }
-                    th.stack.push(Value::Pose(rig_core::pose::Pose::from_array(arr)));
+                    th.stack
+                        .push(Value::Pose(rig_core::pose::Pose::from_array(arr)));
                 }
                 Op::Unary(op) => {
                     let a = pop!();
@@ -336,7 +340,10 @@ impl Interpreter {
                 Op::JumpIfFalse(t) => match pop!() {
                     Value::Bool(true) => {}
                     Value::Bool(false) => th.pc = *t,
-                    v => fail!("type error: a condition must be a bool, got {}", v.type_name()),
+                    v => fail!(
+                        "type error: a condition must be a bool, got {}",
+                        v.type_name()
+                    ),
                 },
                 Op::AndJump(t) | Op::OrJump(t) => {
                     let jump_on = matches!(op, Op::OrJump(_));
@@ -345,7 +352,9 @@ impl Interpreter {
                         Some(Value::Bool(_)) => {
                             th.stack.pop();
                         }
-                        Some(v) => fail!("type error: `and`/`or` need bools, got {}", v.type_name()),
+                        Some(v) => {
+                            fail!("type error: `and`/`or` need bools, got {}", v.type_name())
+                        }
                         None => fail!("internal error: value stack empty"),
                     }
                 }
@@ -380,7 +389,10 @@ impl Interpreter {
                 Op::CallUser { func, nargs } => {
                     let f = &code.funcs[*func];
                     if th.frames.len() >= MAX_CALL_DEPTH {
-                        fail!("calls nested deeper than {MAX_CALL_DEPTH} (runaway recursion in `{}`)", f.name);
+                        fail!(
+                            "calls nested deeper than {MAX_CALL_DEPTH} (runaway recursion in `{}`)",
+                            f.name
+                        );
                     }
                     let at = th.stack.len().saturating_sub(*nargs);
                     let args = th.stack.split_off(at);
@@ -432,7 +444,15 @@ impl Interpreter {
                 Op::Kill | Op::Join => {
                     let h = pop!();
                     let Value::Thread(id) = h else {
-                        fail!("type error: `{}` needs a thread handle, got {}", if matches!(op, Op::Kill) { "kill" } else { "join" }, h.type_name());
+                        fail!(
+                            "type error: `{}` needs a thread handle, got {}",
+                            if matches!(op, Op::Kill) {
+                                "kill"
+                            } else {
+                                "join"
+                            },
+                            h.type_name()
+                        );
                     };
                     if matches!(op, Op::Kill) {
                         if id == th.id {

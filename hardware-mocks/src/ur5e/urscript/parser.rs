@@ -511,9 +511,9 @@ impl Parser<'_> {
                             }
                             kwargs.push((k, self.expr()?));
                         } else if !kwargs.is_empty() {
-                            return Err(self.err(
-                                "a positional argument after a keyword argument".into(),
-                            ));
+                            return Err(
+                                self.err("a positional argument after a keyword argument".into())
+                            );
                         } else {
                             args.push(self.expr()?);
                         }

@@ -107,7 +107,10 @@ fn syntax_and_compile_errors_name_their_line_and_statement() {
     let (line, msg) = syntax_line("def f():\n  for i in x:\n  end\nend\n");
     assert_eq!(line, 2);
     assert!(msg.contains("for i in x:"), "{msg}");
-    assert_eq!(syntax_line("def f():\n  while True:\n    sync()\nend\n").0, 1);
+    assert_eq!(
+        syntax_line("def f():\n  while True:\n    sync()\nend\n").0,
+        1
+    );
     assert_eq!(syntax_line("x = 1\nend\n").0, 2);
     assert_eq!(syntax_line("x = (1 +\n").0, 1);
     assert_eq!(syntax_line("x = 1\nx + 1\n").0, 2);
@@ -145,7 +148,15 @@ fn comparisons_logic_and_ieee_nan() {
          inf = 1e308 * 10\nd = inf > 0 and inf < 1000000\ne = 'ab' == \"ab\"\n\
          f = p[1,2,3,0,0,0] == p[1,2,3,0,0,0]\ng = [1, 2.0] == [1.0, 2]\n",
     );
-    for (k, v) in [("a", true), ("b", true), ("c", false), ("d", false), ("e", true), ("f", true), ("g", true)] {
+    for (k, v) in [
+        ("a", true),
+        ("b", true),
+        ("c", false),
+        ("d", false),
+        ("e", true),
+        ("f", true),
+        ("g", true),
+    ] {
         assert_eq!(i.global(k), Some(&Value::Bool(v)), "{k}");
     }
     // NaN from a register: every comparison False, != True.
@@ -237,7 +248,11 @@ fn control_flow_functions_scoping_and_recursion() {
     assert_eq!(i.global("f"), Some(&Value::Int(120)));
     assert_eq!(
         i.global("c"),
-        Some(&Value::List(vec![Value::Int(-1), Value::Int(0), Value::Int(1)]))
+        Some(&Value::List(vec![
+            Value::Int(-1),
+            Value::Int(0),
+            Value::Int(1)
+        ]))
     );
     // `g = g + 1` in a function assigns the existing global; `local g` then shadows it;
     // `h` is local to the function; `global k` creates a global.
@@ -280,7 +295,11 @@ fn threads_run_join_kill_and_schedule_in_order() {
     assert_eq!(out_int(&c, 24), 12);
     ticks(&mut c, 3);
     assert_eq!(out_int(&c, 25), 0, "a killed thread ran");
-    assert_eq!(c.runtime_state, runtime_state::STOPPED, "halt stops the program");
+    assert_eq!(
+        c.runtime_state,
+        runtime_state::STOPPED,
+        "halt stops the program"
+    );
 }
 
 #[test]
@@ -293,7 +312,10 @@ fn critical_sections_and_runaway_loops_are_errors() {
         e.msg,
         "thread main ran 10000 statements in one cycle without sync(); a real controller would flag this as a runaway loop"
     );
-    let e = runtime_error("thread t():\n  while True:\n  end\nend\nrun t()\nwhile True:\n  sync()\nend\n", 2);
+    let e = runtime_error(
+        "thread t():\n  while True:\n  end\nend\nrun t()\nwhile True:\n  sync()\nend\n",
+        2,
+    );
     assert_eq!(e.thread, "t");
     assert_eq!(e.line, 2);
     // In the controller: the program stops.
@@ -348,7 +370,10 @@ fn watchdog_configuration_and_its_errors() {
     );
     let e = runtime_error("rtde_set_watchdog(\"output_int_register_24\", 10.0)\n", 1);
     assert!(e.msg.contains("not an RTDE input variable"), "{e}");
-    let e = runtime_error("rtde_set_watchdog(\"input_int_register_26\", 10.0, \"explode\")\n", 1);
+    let e = runtime_error(
+        "rtde_set_watchdog(\"input_int_register_26\", 10.0, \"explode\")\n",
+        1,
+    );
     assert!(e.msg.contains("explode"), "{e}");
     // A 10 Hz "stop" watchdog with no heartbeat stops the program after 100 ms.
     let mut c = playing(
@@ -379,7 +404,9 @@ fn textmsg_and_math_builtins() {
 fn completeness_of_uploads() {
     let rig = rig_core::urscript::program(10.0, None);
     assert!(super::is_complete(&rig));
-    let cut = rig.rfind(&format!("{}()", rig_core::control::PROGRAM_NAME)).unwrap();
+    let cut = rig
+        .rfind(&format!("{}()", rig_core::control::PROGRAM_NAME))
+        .unwrap();
     // Up to the def's `end`: closed, but not complete (the call may follow).
     assert!(!super::is_complete(&rig[..cut]));
     assert!(super::is_closed(&rig[..cut]));
@@ -435,7 +462,9 @@ fn malformed_scripts_never_panic() {
     }
     // Random edits: deleted, duplicated and swapped lines, random characters.
     let lines: Vec<&str> = rig.lines().collect();
-    let alphabet: Vec<char> = "()[]:,=<>!+-*/%#\"'p \n\tabcdefxyz0123456789.eE_".chars().collect();
+    let alphabet: Vec<char> = "()[]:,=<>!+-*/%#\"'p \n\tabcdefxyz0123456789.eE_"
+        .chars()
+        .collect();
     let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
     for _ in 0..400 {
         let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
@@ -466,7 +495,9 @@ fn malformed_scripts_never_panic() {
     // Pure noise.
     for _ in 0..200 {
         let len = rng.below(200);
-        let s: String = (0..len).map(|_| alphabet[rng.below(alphabet.len())]).collect();
+        let s: String = (0..len)
+            .map(|_| alphabet[rng.below(alphabet.len())])
+            .collect();
         try_everything(&s);
     }
 }

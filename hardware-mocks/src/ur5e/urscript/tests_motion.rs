@@ -25,7 +25,11 @@ fn movel_with_default_a_and_v_follows_the_trapezoid() {
     // Started at tick 1 (t = 2 ms). a = 1.2, v = 0.25 (the manual's defaults), L = 0.1 m:
     // T = L/v + v/a = 0.608333 s; 0.1 s in, x = ½·a·t² = 6 mm and the speed is a·t.
     let s = ticks(&mut c, 51);
-    assert!((s.actual_tcp_pose.x - 0.306).abs() < 1e-12, "{}", s.actual_tcp_pose.x);
+    assert!(
+        (s.actual_tcp_pose.x - 0.306).abs() < 1e-12,
+        "{}",
+        s.actual_tcp_pose.x
+    );
     assert!((s.actual_tcp_speed[0] - 0.12).abs() < 1e-12);
     // Done at the first tick at or after 2 ms + T = 610.33 ms: tick 306 (612 ms).
     ticks(&mut c, 254);
@@ -42,14 +46,23 @@ fn movel_refuses_bad_parameters_with_an_error_that_stops_the_program() {
     for (call, what) in [
         (format!("movel({target}, a=0, v=0.1)"), "positive a and v"),
         (format!("movel({target}, a=1, v=-0.1)"), "positive a and v"),
-        (format!("movel({target}, a=0.0/0.0, v=0.1)"), "positive a and v"),
+        (
+            format!("movel({target}, a=0.0/0.0, v=0.1)"),
+            "positive a and v",
+        ),
         (format!("movel({target}, t=2)"), "not supported"),
         (format!("movel({target}, r=0.01)"), "not supported"),
-        ("movel(p[1e308 * 10, 0, 0, 0, 0, 0])".to_owned(), "non-finite"),
+        (
+            "movel(p[1e308 * 10, 0, 0, 0, 0, 0])".to_owned(),
+            "non-finite",
+        ),
         ("movel([0, 0, 0, 0, 0, 0])".to_owned(), "joint positions"),
         ("movel(3)".to_owned(), "type error"),
         ("stopl(0)".to_owned(), "positive a"),
-        ("set_tcp(p[0, 0, 1e308 * 10, 0, 0, 0])".to_owned(), "non-finite"),
+        (
+            "set_tcp(p[0, 0, 1e308 * 10, 0, 0, 0])".to_owned(),
+            "non-finite",
+        ),
     ] {
         let text = format!("x = 1\n{call}\n");
         let e = super::tests::runtime_error(&text, 1);
@@ -80,7 +93,11 @@ fn stopl_decelerates_a_killed_mover_over_v2_over_2a() {
     assert_eq!(out_int(&c, 24), 1);
     assert_eq!(s.actual_tcp_speed, [0.0; 6]);
     let expected = 0.3 + s0 + 0.25 * 0.25 / (2.0 * 2.0);
-    assert!((s.actual_tcp_pose.x - expected).abs() < 1e-12, "{}", s.actual_tcp_pose.x);
+    assert!(
+        (s.actual_tcp_pose.x - expected).abs() < 1e-12,
+        "{}",
+        s.actual_tcp_pose.x
+    );
     ticks(&mut c, 100);
     assert!((c.tcp_pose().x - expected).abs() < 1e-12);
 }
@@ -176,9 +193,12 @@ fn a_runtime_error_mid_move_stops_the_program_with_the_controller_deceleration()
     assert_eq!(s.runtime_state, runtime_state::STOPPED);
     let s = ticks(&mut c, 200);
     assert_eq!(s.actual_tcp_speed, [0.0; 6]);
-    let expected =
-        0.3 + cruise_s(0.25, 1.2, 0.4) + 0.25 * 0.25 / (2.0 * CONTROLLER_STOP_DECEL);
-    assert!((s.actual_tcp_pose.x - expected).abs() < 1e-12, "{}", s.actual_tcp_pose.x);
+    let expected = 0.3 + cruise_s(0.25, 1.2, 0.4) + 0.25 * 0.25 / (2.0 * CONTROLLER_STOP_DECEL);
+    assert!(
+        (s.actual_tcp_pose.x - expected).abs() < 1e-12,
+        "{}",
+        s.actual_tcp_pose.x
+    );
 }
 
 #[test]
@@ -223,7 +243,9 @@ fn pause_keeps_the_program_and_resume_finishes_the_interrupted_movel() {
 
 #[test]
 fn play_restarts_the_program_from_its_first_statement() {
-    let mut c = playing("n = 0\nwhile True:\n  n = n + 1\n  write_output_integer_register(24, n)\n  sync()\nend\n");
+    let mut c = playing(
+        "n = 0\nwhile True:\n  n = n + 1\n  write_output_integer_register(24, n)\n  sync()\nend\n",
+    );
     ticks(&mut c, 10);
     assert_eq!(out_int(&c, 24), 10);
     let t = c.t_ns;

@@ -6,8 +6,8 @@ use rig_core::pose::{Pose, pose_trans, rotation_distance, translation_distance};
 use rig_core::rtde::Value as Rtde;
 
 use super::super::controller::Controller;
-use super::super::variables::{InputSink, resolve_input};
 use super::super::urscript::WatchdogAction;
+use super::super::variables::{InputSink, resolve_input};
 use super::Program;
 use super::tests::{P, controller_with_tool, home, out_int};
 
@@ -82,8 +82,14 @@ fn the_rigs_program_moves_stops_and_rejects_through_the_registers() {
     assert_eq!(out_int(&c, control::OUT_DONE_SEQ as usize), 5);
     assert_eq!(status(&c), ProgramStatus::Idle as i32);
     assert_eq!(c.watchdogs.len(), 1);
-    assert_eq!(c.watchdogs[0].variable, control::input_int(control::IN_HEARTBEAT));
-    assert_eq!((c.watchdogs[0].min_hz, c.watchdogs[0].action), (10.0, WatchdogAction::Stop));
+    assert_eq!(
+        c.watchdogs[0].variable,
+        control::input_int(control::IN_HEARTBEAT)
+    );
+    assert_eq!(
+        (c.watchdogs[0].min_hz, c.watchdogs[0].action),
+        (10.0, WatchdogAction::Stop)
+    );
     // set_tcp: the reported TCP is the tool tip, 0.1 m below the flange (tool down).
     let tcp0 = c.snapshot().actual_tcp_pose;
     assert!((tcp0.z - 0.2).abs() < 1e-12);
@@ -112,7 +118,10 @@ fn the_rigs_program_moves_stops_and_rejects_through_the_registers() {
     assert!(translation_distance(&c.tip_pose(), &target) < 0.05e-3);
 
     // A long move, then Stop with a = 2 m/s² while cruising at 0.25 m/s.
-    let far = Pose { x: target.x + 0.3, ..target };
+    let far = Pose {
+        x: target.x + 0.3,
+        ..target
+    };
     command(&mut c, 7, MOVEL, far, 0.25, 1.2);
     run(&mut c, 150);
     assert_eq!(status(&c), ProgramStatus::Moving as i32);
@@ -130,7 +139,11 @@ fn the_rigs_program_moves_stops_and_rejects_through_the_registers() {
     assert_eq!(c.tcp_pose(), s.actual_tcp_pose, "moved after the stop");
 
     // Rejected: a NaN speed, an infinite acceleration, an unknown kind.
-    for (seq, kind, v, a) in [(9, MOVEL, f64::NAN, 1.0), (10, MOVEL, 0.1, f64::INFINITY), (11, 7, 0.1, 1.0)] {
+    for (seq, kind, v, a) in [
+        (9, MOVEL, f64::NAN, 1.0),
+        (10, MOVEL, 0.1, f64::INFINITY),
+        (11, 7, 0.1, 1.0),
+    ] {
         command(&mut c, seq, kind, target, v, a);
         run(&mut c, 1);
         assert_eq!(out_int(&c, control::OUT_DONE_SEQ as usize), seq);
@@ -141,8 +154,15 @@ fn the_rigs_program_moves_stops_and_rejects_through_the_registers() {
     assert_eq!(c.runtime_state, runtime_state::PLAYING);
 
     // Every command package was logged with its kind and arrival time.
-    let log: Vec<(i32, i32)> = c.commands_received().iter().map(|r| (r.seq, r.kind)).collect();
-    assert_eq!(log, [(5, 1), (6, 1), (7, 1), (8, 2), (9, 1), (10, 1), (11, 7)]);
+    let log: Vec<(i32, i32)> = c
+        .commands_received()
+        .iter()
+        .map(|r| (r.seq, r.kind))
+        .collect();
+    assert_eq!(
+        log,
+        [(5, 1), (6, 1), (7, 1), (8, 2), (9, 1), (10, 1), (11, 7)]
+    );
     assert_eq!(c.commands_received()[1].t_ns, t_read - P);
 }
 
@@ -158,7 +178,10 @@ fn without_its_movel_line_the_program_does_not_move() {
     for (program, moves) in [(full, true), (text, false)] {
         let mut c = start(&program, Pose::default());
         run(&mut c, 1);
-        let target = Pose { z: home().z - 0.05, ..home() };
+        let target = Pose {
+            z: home().z - 0.05,
+            ..home()
+        };
         command(&mut c, 1, MOVEL, target, 0.1, 1.0);
         // T = 0.05/0.1 + 0.1/1 = 0.6 s: 300 ticks, and some.
         run(&mut c, 320);
@@ -195,7 +218,10 @@ fn without_set_tcp_the_physical_tip_misses_by_the_tool_length() {
 fn the_watchdog_the_program_arms_stops_it_when_the_heartbeat_stops() {
     let mut c = start(&rig_core::urscript::program(10.0, None), Pose::default());
     run(&mut c, 10);
-    let far = Pose { x: home().x + 0.5, ..home() };
+    let far = Pose {
+        x: home().x + 0.5,
+        ..home()
+    };
     command(&mut c, 1, MOVEL, far, 0.25, 1.2);
     run(&mut c, 200);
     assert_eq!(c.runtime_state, runtime_state::PLAYING);

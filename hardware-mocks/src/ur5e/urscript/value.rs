@@ -246,9 +246,6 @@ pub fn set_index(a: &Value, i: &Value, v: Value) -> Result<Value, String> {
             *slot = x;
             Ok(Value::Pose(Pose::from_array(arr)))
         }
-        other => Err(format!(
-            "type error: cannot index a {}",
-            other.type_name()
-        )),
+        other => Err(format!("type error: cannot index a {}", other.type_name())),
     }
 }
