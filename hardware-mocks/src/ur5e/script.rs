@@ -42,11 +42,8 @@ async fn handle(mut sock: TcpStream, shared: &Shared) {
     let mut buf = vec![0u8; 8192];
     loop {
         let read = if is_closed(&text) {
-            match tokio::time::timeout(QUIET, sock.read(&mut buf)).await {
-                Ok(r) => Some(r),
-                // Quiet: run what is there.
-                Err(_) => None,
-            }
+            // `None` when quiet: run what is there.
+            tokio::time::timeout(QUIET, sock.read(&mut buf)).await.ok()
         } else {
             Some(sock.read(&mut buf).await)
         };

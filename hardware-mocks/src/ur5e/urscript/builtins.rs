@@ -59,8 +59,11 @@ enum Dflt {
 use Builtin as B;
 use Dflt::*;
 
-/// Name, function and parameters (name, default) of every built-in.
-const TABLE: &[(&str, Builtin, &[(&str, Dflt)])] = &[
+/// A built-in's parameters: name and default, in order.
+type Params = &'static [(&'static str, Dflt)];
+
+/// Name, function and parameters of every built-in.
+const TABLE: &[(&str, Builtin, Params)] = &[
     (
         "read_input_integer_register",
         B::ReadInputInt,
@@ -147,7 +150,7 @@ const TABLE: &[(&str, Builtin, &[(&str, Dflt)])] = &[
     ("to_str", B::ToStr, &[("val", Required)]),
 ];
 
-fn entry(f: Builtin) -> &'static (&'static str, Builtin, &'static [(&'static str, Dflt)]) {
+fn entry(f: Builtin) -> &'static (&'static str, Builtin, Params) {
     TABLE
         .iter()
         .find(|e| e.1 == f)

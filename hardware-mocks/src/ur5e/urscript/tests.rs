@@ -441,7 +441,7 @@ fn try_everything(text: &str) {
     };
     let mut c = controller_with_tool(Pose::default());
     c.upload(program, 0);
-    c.in_double[24..30].copy_from_slice(&[0.3, -0.2, 0.29, 0.0, 3.14, 0.0]);
+    c.in_double[24..30].copy_from_slice(&[0.3, -0.2, 0.29, 0.0, std::f64::consts::PI, 0.0]);
     c.in_double[30] = 0.1;
     c.in_double[31] = 1.0;
     c.in_int[24] = 1;

@@ -40,7 +40,7 @@ fn run(c: &mut Controller, n: u64) {
     let hb = vec![control::input_int(control::IN_HEARTBEAT)];
     for _ in 0..n {
         let t = c.t_ns + P;
-        if (t / P) % 5 == 0 {
+        if (t / P).is_multiple_of(5) {
             write(c, &hb, &[Rtde::Int32((t / P) as i32)]);
         }
         c.tick(t);
