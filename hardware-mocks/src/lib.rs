@@ -2,7 +2,8 @@
 //! so the rig (and third-party clients such as PyPI `ur-rtde`) can run against them unchanged.
 //!
 //! - [`ur5e`]: a UR5e controller — RTDE server at 500 Hz, dashboard server, secondary interface
-//!   that accepts the rig's URScript control program, a trapezoidal moveL model and injectable
+//!   whose URScript interpreter runs the programs it is sent (the rig's control program among
+//!   them), a trapezoidal moveL model and injectable
 //!   faults (protective stop, emergency stop, RTDE connection drop, delayed start
 //!   acknowledgement, text messages mid-handshake).
 //! - [`sim`]: the contact + optics simulator that turns one scene into forces and images.

@@ -14,4 +14,5 @@ pub mod optics;
 pub mod pose;
 pub mod problem;
 pub mod rtde;
+pub mod urscript;
 pub mod wrench;

@@ -18,7 +18,11 @@
 //!
 //! # Geometry
 //!
-//! The TCP is the indenter tip (see `rig_core::config`, "TCP at contact"). Its pose is expressed
+//! The TCP is the indenter tip (see `rig_core::config`, "TCP at contact"). What presses is the
+//! **physical** tip, `pose_trans(flange, tool_offset)` ([`Ur5e::tip_pose_at`], with the UR5e's
+//! [`Ur5eConfig::tool_offset`], identity by default), not the TCP the controller reports: a
+//! program whose `set_tcp` does not match the tool presses with the wrong point, as a real rig
+//! would. The tip's pose is expressed
 //! in the sensor surface frame, `p = pose_trans(pose_inv(surface_frame), tcp)`; then
 //! `contact_mm = (p.x, p.y)·1000`, `depth_mm = −p.z·1000`, `shear_mm = [0, 0]`: the indenter axis
 //! is at the TCP, and shearing is simply the contact point moving, with friction history
@@ -53,7 +57,7 @@
 //!
 //! With [`PhysicsConfig::on_demand`] (the cheap models `rig run` uses), an F/T sample or a
 //! frame asked for at a time past the newest physics step first steps the physics, one period
-//! apart, through the poses the controller had up to that time ([`Ur5e::tcp_pose_at`]), and the
+//! apart, through the poses the controller had up to that time ([`Ur5e::tip_pose_at`]), and the
 //! physics task replays ticks it woke too late for. A sample or frame thus shows the contact of
 //! the controller tick at or before its own time however late its task ran on a busy host
 //! ([`PhysicsStats::max_field_age_ns`] says how stale the images were). Without it (the costly
@@ -237,8 +241,8 @@ impl SimRig {
             opts.camera.is_some(),
         )?;
         // The state at start, so the F/T and the camera have a sample from t = start.
-        let s = ur5e.snapshot();
-        if let Err(e) = physics.update(s.t_ns, &s.actual_tcp_pose) {
+        let (t_start, tip) = ur5e.tip_pose_now();
+        if let Err(e) = physics.update(t_start, &tip) {
             tracing::warn!("contact physics at start: {e}");
         }
         let src = ur5e.clone();
@@ -246,12 +250,7 @@ impl SimRig {
             clock.clone(),
             // The pose the controller had at the time asked for (due ticks processed first),
             // so a step, on time or late, sees the contact of its own instant.
-            Arc::new(move |t_ns| {
-                src.tcp_pose_at(t_ns).unwrap_or_else(|| {
-                    let s = src.snapshot_now();
-                    (s.t_ns, s.actual_tcp_pose)
-                })
-            }),
+            Arc::new(move |t_ns| src.tip_pose_at(t_ns).unwrap_or_else(|| src.tip_pose_now())),
         )));
 
         let fs = config.force_sensor.as_ref();

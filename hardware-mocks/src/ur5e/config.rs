@@ -16,8 +16,12 @@ pub struct Ur5eConfig {
     pub dashboard_addr: SocketAddr,
     /// Secondary interface listener for scripts (30002 on a real controller).
     pub script_addr: SocketAddr,
-    /// TCP pose at start.
+    /// TCP pose at start (with no TCP offset: the flange pose).
     pub home_pose: Pose,
+    /// The physical tool: flange → indenter tip (`pose_trans(flange, tool_offset)` is the tip,
+    /// what the contact physics presses with). Identity: the tip is at the flange. A program
+    /// reports and steers this tip only if it sets the same TCP with `set_tcp`.
+    pub tool_offset: Pose,
     /// Reported by the `v` request: (major, minor, bugfix, build). Major ≥ 5 is an e-Series.
     pub controller_version: (u32, u32, u32, u32),
     /// robot_mode at start ([`control::robot_mode`]).
@@ -38,6 +42,7 @@ impl Default for Ur5eConfig {
             script_addr: local,
             // A tool pointing down above the table, as the rig's plans start.
             home_pose: Pose::new(0.3, -0.2, 0.3, 0.0, std::f64::consts::PI, 0.0),
+            tool_offset: Pose::default(),
             controller_version: (5, 15, 0, 0),
             initial_robot_mode: control::robot_mode::POWER_OFF,
             max_frequency_hz: 500.0,

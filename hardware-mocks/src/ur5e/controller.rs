@@ -1,22 +1,42 @@
-//! The controller model: robot, safety and program state, the emulated rig program, and the
+//! The controller model: robot, safety and program state, the arm's motion, and the
 //! registers, advanced one controller cycle at a time by [`Controller::tick`].
 //!
 //! The model is a plain struct behind a mutex: the tick task, the RTDE connections (writing
 //! inputs), the dashboard and the script port all lock it briefly; nothing awaits while
 //! holding it. Time is always passed in (`t_ns` on the shared clock), never read here.
+//!
+//! # One cycle ([`Controller::tick`])
+//!
+//! 1. The RTDE watchdogs the program armed are checked (while the program plays).
+//! 2. The motion is evaluated at the cycle's time (the flange pose, the TCP speed; a finished
+//!    motion ends here, so a `movel` waiting for it returns in this same cycle).
+//! 3. The program's threads run ([`super::urscript::Interpreter::step`]); a runtime error
+//!    stops the program (logged with its line and statement) and decelerates the arm.
+//! 4. The motion is evaluated again (a move started in this cycle starts at this time).
+//!
+//! # Flange, TCP and tool
+//!
+//! The arm's state is its **flange** pose. The **TCP offset** (flange → tool centre point) is
+//! what the program set with `set_tcp` (identity when a program starts: the mock's installation
+//! has no TCP configured); the reported `actual_TCP_pose`/`target_TCP_pose`, `get_actual_tcp_pose()`
+//! and `movel` targets are TCP poses, `pose_trans(flange, tcp_offset)`. A `movel` moves the TCP
+//! of the offset in force when it starts along a straight line; the flange follows as
+//! `pose_trans(tcp, pose_inv(offset))`. The **physical tool** ([`super::Ur5eConfig::tool_offset`])
+//! is what is really bolted to the flange: its tip, `pose_trans(flange, tool_offset)`, is what
+//! touches things ([`Controller::tip_pose`]). When the program's TCP matches the tool, the
+//! reported TCP is the tip; a program that forgets `set_tcp` reports (and steers) the flange.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 
 use rig_core::control::{
-    self, CommandKind, ProgramStatus, motion_allowed, robot_mode, robot_mode_name, runtime_state,
-    safety_mode, safety_mode_name,
+    self, motion_allowed, robot_mode, robot_mode_name, runtime_state, safety_mode, safety_mode_name,
 };
-use rig_core::pose::Pose;
+use rig_core::pose::{self, Pose};
 use rig_core::rtde::Value;
 
 use super::motion::LinearMove;
-use super::program::{Script, WatchdogAction};
 use super::snapshot::ControllerSnapshot;
+use super::urscript::{Interpreter, Program, Watchdog, WatchdogAction};
 use super::variables::InputSink;
 
 /// Deceleration of stops the controller imposes itself (protective stop, emergency stop,
@@ -26,65 +46,119 @@ use super::variables::InputSink;
 /// 10 mm and 83 ms. A move's own commanded acceleration is used instead when it is larger.
 pub const CONTROLLER_STOP_DECEL: f64 = 3.0;
 
-/// The program command being executed.
+/// One `movel` in progress: a straight line of the TCP given by `tcp` (the offset in force
+/// when it started).
 #[derive(Debug, Clone, PartialEq)]
-struct ActiveCommand {
-    seq: i32,
-    target: Pose,
-    speed: f64,
-    accel: f64,
+pub(super) struct ActiveMotion {
+    pub(super) id: u64,
+    pub(super) mv: LinearMove,
+    pub(super) tcp: Pose,
+    pub(super) speed: f64,
+    pub(super) accel: f64,
 }
+
+/// One input data package that changed the command sequence register
+/// ([`control::IN_CMD_SEQ`]), as the controller received it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CommandReceived {
+    /// Clock time the package was applied, ns.
+    pub t_ns: u64,
+    /// The new sequence number.
+    pub seq: i32,
+    /// [`control::IN_CMD_KIND`] after the package (the command's kind).
+    pub kind: i32,
+}
+
+/// Commands kept in [`Controller::commands_received`].
+pub const COMMAND_LOG: usize = 4096;
 
 #[derive(Debug)]
 pub struct Controller {
-    t0_ns: u64,
+    pub(super) t0_ns: u64,
     pub t_ns: u64,
-    pose: Pose,
-    speed: [f64; 6],
-    motion: Option<LinearMove>,
+    /// The flange pose.
+    pub(super) flange: Pose,
+    /// Flange → TCP, set by the program's `set_tcp`.
+    pub(super) tcp_offset: Pose,
+    /// Flange → physical tool tip ([`super::Ur5eConfig::tool_offset`]).
+    tool_offset: Pose,
+    pub(super) speed: [f64; 6],
+    pub(super) motion: Option<ActiveMotion>,
+    pub(super) next_motion_id: u64,
     pub robot_mode: i32,
     pub safety_mode: i32,
     pub runtime_state: u32,
-    /// The last script uploaded that the mock can run (the rig's program).
-    pub program: Option<Script>,
+    /// The last script uploaded (compiled).
+    pub program: Option<Program>,
+    /// The running (or paused) program's state.
+    pub(super) interp: Option<Interpreter>,
+    /// The watchdogs the running program armed.
+    pub(super) watchdogs: Vec<Watchdog>,
+    /// A `movel` interrupted by a pause, restarted towards its target on resume.
+    pub(super) resume_move: Option<ActiveMotion>,
     program_started_ns: u64,
-    last_seen_seq: i32,
-    /// The moveL/stop the program is executing (done when the motion ends).
-    active: Option<ActiveCommand>,
     pub protective_stop_at_ns: Option<u64>,
     protective_stop_unlock_delay_ns: u64,
-    in_int: [i32; 48],
-    in_double: [f64; 48],
-    in_bits: u128,
+    pub(super) in_int: [i32; 48],
+    pub(super) in_double: [f64; 48],
+    pub(super) in_bits: u128,
     in_other: HashMap<String, Value>,
-    out_int: [i32; 48],
-    out_double: [f64; 48],
-    out_bits: u128,
+    pub(super) out_int: [i32; 48],
+    pub(super) out_double: [f64; 48],
+    pub(super) out_bits: u128,
     /// Clock time of the last data package that wrote each input variable (for the watchdog).
     input_written_ns: HashMap<String, u64>,
     /// Input variable → the RTDE connection whose input recipe holds it.
     input_owners: HashMap<String, u64>,
+    commands: VecDeque<CommandReceived>,
 }
 
-fn valid_motion_param(x: f64) -> bool {
-    x.is_finite() && x > 0.0
+/// `pose_trans(p, offset)`, exactly `p` for the identity offset (no rounding through the
+/// rotation conversions, so an arm without a tool reports its target bit for bit).
+pub(super) fn offset_by(p: &Pose, offset: &Pose) -> Pose {
+    if *offset == Pose::default() {
+        *p
+    } else {
+        pose::pose_trans(p, offset)
+    }
+}
+
+/// The flange pose for TCP pose `tcp_pose` with TCP offset `offset`.
+pub(super) fn flange_of(tcp_pose: &Pose, offset: &Pose) -> Pose {
+    if *offset == Pose::default() {
+        *tcp_pose
+    } else {
+        pose::pose_trans(tcp_pose, &pose::pose_inv(offset))
+    }
 }
 
 impl Controller {
-    pub fn new(home: Pose, robot_mode: i32, unlock_delay_ns: u64, t0_ns: u64) -> Self {
+    /// A controller at rest with its TCP (no offset) at `home`, its physical tool tip at
+    /// `pose_trans(home, tool_offset)`.
+    pub fn new(
+        home: Pose,
+        tool_offset: Pose,
+        robot_mode: i32,
+        unlock_delay_ns: u64,
+        t0_ns: u64,
+    ) -> Self {
         Self {
             t0_ns,
             t_ns: t0_ns,
-            pose: home,
+            flange: home,
+            tcp_offset: Pose::default(),
+            tool_offset,
             speed: [0.0; 6],
             motion: None,
+            next_motion_id: 1,
             robot_mode,
             safety_mode: safety_mode::NORMAL,
             runtime_state: runtime_state::STOPPED,
             program: None,
+            interp: None,
+            watchdogs: Vec::new(),
+            resume_move: None,
             program_started_ns: t0_ns,
-            last_seen_seq: 0,
-            active: None,
             protective_stop_at_ns: None,
             protective_stop_unlock_delay_ns: unlock_delay_ns,
             in_int: [0; 48],
@@ -96,7 +170,28 @@ impl Controller {
             out_bits: 0,
             input_written_ns: HashMap::new(),
             input_owners: HashMap::new(),
+            commands: VecDeque::new(),
         }
+    }
+
+    /// The TCP pose: the flange moved by the program's TCP offset.
+    pub fn tcp_pose(&self) -> Pose {
+        offset_by(&self.flange, &self.tcp_offset)
+    }
+
+    /// The flange pose.
+    pub fn flange_pose(&self) -> Pose {
+        self.flange
+    }
+
+    /// Where the physical tool's tip is: the flange moved by the configured tool offset.
+    pub fn tip_pose(&self) -> Pose {
+        offset_by(&self.flange, &self.tool_offset)
+    }
+
+    /// The last [`COMMAND_LOG`] command-sequence changes received, oldest first.
+    pub fn commands_received(&self) -> Vec<CommandReceived> {
+        self.commands.iter().copied().collect()
     }
 
     /// The state as the RTDE stream would report it now (without the package counter).
@@ -104,9 +199,9 @@ impl Controller {
         ControllerSnapshot {
             t_ns: self.t_ns,
             timestamp_s: self.t_ns.saturating_sub(self.t0_ns) as f64 * 1e-9,
-            actual_tcp_pose: self.pose,
+            actual_tcp_pose: self.tcp_pose(),
             // Tracking error is not modelled: the target is where the arm is.
-            target_tcp_pose: self.pose,
+            target_tcp_pose: self.tcp_pose(),
             actual_tcp_speed: self.speed,
             robot_mode: self.robot_mode,
             safety_mode: self.safety_mode,
@@ -126,102 +221,37 @@ impl Controller {
         motion_allowed(self.robot_mode, self.safety_mode, self.runtime_state)
     }
 
-    /// One controller cycle at clock time `t_ns`.
+    /// One controller cycle at clock time `t_ns` (see the module docs).
     pub fn tick(&mut self, t_ns: u64) -> ControllerSnapshot {
         self.t_ns = t_ns;
         if self.motion_allowed() {
             self.check_watchdogs(t_ns);
         }
+        self.advance_motion(t_ns);
         if self.motion_allowed() {
-            self.program_step(t_ns);
+            self.run_program_cycle(t_ns);
         }
+        self.advance_motion(t_ns);
+        self.snapshot()
+    }
+
+    /// The motion at `t_ns`: flange pose and TCP speed; a finished motion ends.
+    fn advance_motion(&mut self, t_ns: u64) {
         if let Some(m) = &self.motion {
-            let st = m.state_at(t_ns);
-            self.pose = st.pose;
+            let st = m.mv.state_at(t_ns);
+            self.flange = flange_of(&st.pose, &m.tcp);
             self.speed = st.speed;
             if st.finished {
                 self.motion = None;
-                if self.runtime_state == runtime_state::PLAYING
-                    && let Some(cmd) = self.active.take()
-                {
-                    self.out_int[control::OUT_DONE_SEQ as usize] = cmd.seq;
-                    self.out_int[control::OUT_STATUS as usize] = ProgramStatus::Idle as i32;
-                }
             }
         } else {
             self.speed = [0.0; 6];
         }
-        self.snapshot()
-    }
-
-    /// The emulated rig program: poll the command sequence register (see
-    /// `rig_core::control` and `rig::robot::urscript`).
-    fn program_step(&mut self, t_ns: u64) {
-        let seq = self.in_int[control::IN_CMD_SEQ as usize];
-        if seq == self.last_seen_seq {
-            return;
-        }
-        self.last_seen_seq = seq;
-        self.out_int[control::OUT_ACK_SEQ as usize] = seq;
-        let kind = self.in_int[control::IN_CMD_KIND as usize];
-        let v = self.in_double[control::IN_SPEED as usize];
-        let a = self.in_double[control::IN_ACCEL as usize];
-        let p0 = control::IN_TARGET_POSE as usize;
-        let target = Pose::from_array(std::array::from_fn(|i| self.in_double[p0 + i]));
-        let reject = |c: &mut Self| {
-            c.out_int[control::OUT_STATUS as usize] = ProgramStatus::Rejected as i32;
-            c.out_int[control::OUT_DONE_SEQ as usize] = seq;
-        };
-        match CommandKind::from_i32(kind) {
-            Some(CommandKind::MoveL) => {
-                let finite_target = target.to_array().iter().all(|x| x.is_finite());
-                if !(valid_motion_param(v) && valid_motion_param(a) && finite_target) {
-                    reject(self);
-                    return;
-                }
-                // Like the program's `kill mover` + new `movel`: a moveL during a move starts
-                // afresh from the current pose (the rig waits for DONE before the next one).
-                let m = LinearMove::new(self.pose, target, v, a, t_ns);
-                self.motion = Some(m);
-                self.active = Some(ActiveCommand {
-                    seq,
-                    target,
-                    speed: v,
-                    accel: a,
-                });
-                self.out_int[control::OUT_STATUS as usize] = ProgramStatus::Moving as i32;
-            }
-            Some(CommandKind::Stop) => {
-                if !valid_motion_param(a) {
-                    reject(self);
-                    return;
-                }
-                // stopl(a): decelerate along the path; DONE when at rest.
-                if let Some(m) = &mut self.motion {
-                    m.begin_stop(t_ns, a);
-                    self.active = Some(ActiveCommand {
-                        seq,
-                        target: self.pose,
-                        speed: v,
-                        accel: a,
-                    });
-                } else {
-                    self.active = None;
-                    self.out_int[control::OUT_DONE_SEQ as usize] = seq;
-                    self.out_int[control::OUT_STATUS as usize] = ProgramStatus::Idle as i32;
-                }
-            }
-            Some(CommandKind::None) => {
-                self.out_int[control::OUT_DONE_SEQ as usize] = seq;
-            }
-            None => reject(self),
-        }
     }
 
     fn check_watchdogs(&mut self, t_ns: u64) {
-        let Some(program) = &self.program else { return };
         let mut fired = None;
-        for w in &program.watchdogs {
+        for w in &self.watchdogs {
             if !(w.min_hz.is_finite() && w.min_hz > 0.0) {
                 continue;
             }
@@ -250,18 +280,20 @@ impl Controller {
         }
     }
 
-    fn controller_stop_motion(&mut self, t_ns: u64) {
+    pub(super) fn controller_stop_motion(&mut self, t_ns: u64) {
         if let Some(m) = &mut self.motion {
-            let decel = CONTROLLER_STOP_DECEL.max(m.accel);
-            m.begin_stop(t_ns, decel);
+            let decel = CONTROLLER_STOP_DECEL.max(m.mv.accel);
+            m.mv.begin_stop(t_ns, decel);
         }
     }
 
-    /// Start (or restart) the loaded program if the robot allows it.
+    /// Start (or restart, from its first statement) the loaded program if the robot allows
+    /// it. The program starts with no watchdog armed and the TCP offset at identity.
     pub fn start_program(&mut self, t_ns: u64) -> Result<(), String> {
-        if self.program.is_none() {
+        let Some(program) = &self.program else {
             return Err("no program loaded".into());
-        }
+        };
+        let interp = program.start();
         if self.robot_mode != robot_mode::RUNNING {
             return Err(format!(
                 "robot mode is {}",
@@ -275,21 +307,18 @@ impl Controller {
             ));
         }
         self.controller_stop_motion(t_ns);
-        // The program starts with ack = done = the current seq so a stale command is not
-        // replayed.
-        let seq = self.in_int[control::IN_CMD_SEQ as usize];
-        self.last_seen_seq = seq;
-        self.out_int[control::OUT_ACK_SEQ as usize] = seq;
-        self.out_int[control::OUT_DONE_SEQ as usize] = seq;
-        self.out_int[control::OUT_STATUS as usize] = ProgramStatus::Idle as i32;
-        self.active = None;
+        self.interp = Some(interp);
+        self.watchdogs.clear();
+        self.tcp_offset = Pose::default();
+        self.resume_move = None;
         self.program_started_ns = t_ns;
         self.runtime_state = runtime_state::PLAYING;
         Ok(())
     }
 
-    /// Load an uploaded script and start it when the robot is ready.
-    pub fn upload(&mut self, script: Script, t_ns: u64) {
+    /// Load an uploaded (compiled) script and start it when the robot is ready; a running
+    /// program is replaced.
+    pub fn upload(&mut self, script: Program, t_ns: u64) {
         let name = script.name.clone();
         self.program = Some(script);
         match self.start_program(t_ns) {
@@ -301,16 +330,28 @@ impl Controller {
         }
     }
 
-    /// Stop the program (dashboard `stop`, watchdog "stop", safety stops).
+    /// A script that did not compile arrived: the running program stops (the new script
+    /// replaced it) and nothing is loaded.
+    pub fn refuse_upload(&mut self, t_ns: u64) {
+        self.stop_program(t_ns);
+        self.program = None;
+    }
+
+    /// Stop the program (dashboard `stop`, watchdog "stop", safety stops, program end, runtime
+    /// errors): its threads are gone and the arm decelerates.
     pub fn stop_program(&mut self, t_ns: u64) {
         self.controller_stop_motion(t_ns);
-        self.active = None;
+        self.interp = None;
+        self.resume_move = None;
         self.runtime_state = runtime_state::STOPPED;
     }
 
-    /// Pause the program (dashboard `pause`, watchdog "pause"): the move decelerates and is
-    /// resumed from where it stopped by `play`.
+    /// Pause the program (dashboard `pause`, watchdog "pause"): the threads keep their state,
+    /// the move decelerates and is resumed towards its target by `play`.
     pub fn pause_program(&mut self, t_ns: u64) {
+        if let Some(m) = self.motion.as_ref().filter(|m| !m.mv.is_stopping()) {
+            self.resume_move = Some(m.clone());
+        }
         self.controller_stop_motion(t_ns);
         self.runtime_state = runtime_state::PAUSED;
     }
@@ -324,10 +365,13 @@ impl Controller {
         }
         self.runtime_state = runtime_state::PLAYING;
         self.program_started_ns = t_ns;
-        if let Some(cmd) = &self.active {
-            self.motion = Some(LinearMove::new(
-                self.pose, cmd.target, cmd.speed, cmd.accel, t_ns,
-            ));
+        if let Some(m) = self.resume_move.take() {
+            // The same motion id: the `movel` waiting for it goes on waiting.
+            let start = offset_by(&self.flange, &m.tcp);
+            self.motion = Some(ActiveMotion {
+                mv: LinearMove::new(start, m.mv.target, m.speed, m.accel, t_ns),
+                ..m
+            });
         }
         Ok(())
     }
@@ -425,6 +469,7 @@ impl Controller {
         values: &[Value],
         t_ns: u64,
     ) {
+        let seq_before = self.in_int[control::IN_CMD_SEQ as usize];
         for ((name, sink), value) in names.iter().zip(sinks).zip(values) {
             match (sink, value) {
                 (InputSink::Int(n), Value::Int32(v)) if *n < 48 => self.in_int[*n] = *v,
@@ -443,6 +488,17 @@ impl Controller {
                 _ => {}
             }
             self.input_written_ns.insert(name.clone(), t_ns);
+        }
+        let seq = self.in_int[control::IN_CMD_SEQ as usize];
+        if seq != seq_before {
+            if self.commands.len() == COMMAND_LOG {
+                self.commands.pop_front();
+            }
+            self.commands.push_back(CommandReceived {
+                t_ns,
+                seq,
+                kind: self.in_int[control::IN_CMD_KIND as usize],
+            });
         }
     }
 }

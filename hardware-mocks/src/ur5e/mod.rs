@@ -13,8 +13,8 @@
 //!   controller's registers;
 //! - the **dashboard server** ([`dashboard`]): power on, brake release, unlock protective stop,
 //!   play, stop, mode queries;
-//! - the **secondary interface** ([`script`]), which accepts the rig's URScript control program
-//!   ([`program`] reads it).
+//! - the **secondary interface** ([`script`]), which accepts URScript programs; the
+//!   controller runs them with its interpreter ([`urscript`], [`program`]).
 //!
 //! [`Ur5eConfig`] ([`config`]) sets it up; [`ControllerSnapshot`] ([`snapshot`]) is one tick's
 //! state. What the tasks share, and the accept loop of the three servers, are in `shared.rs`;
@@ -26,7 +26,10 @@
 //!
 //! # Motion model
 //!
-//! `movel` follows a trapezoidal velocity profile with the commanded speed and acceleration
+//! The arm's state is its flange pose; the program's TCP offset (`set_tcp`, identity when a
+//! program starts) gives the reported TCP pose, and the configured physical tool
+//! ([`Ur5eConfig::tool_offset`]) gives the tip that touches things ([`Ur5e::tip_pose_at`]); see
+//! [`controller`]. `movel` follows a trapezoidal velocity profile with the commanded speed and acceleration
 //! (a triangle when the path is too short), computed analytically from the move's start tick
 //! ([`motion`]). The actual TCP pose is the profile's pose exactly — the real controller's
 //! tracking error is **not modelled** — and `target_TCP_pose` equals it. `actual_TCP_speed` is
@@ -34,18 +37,18 @@
 //! axis. A command is read at the tick after its registers arrive, the move starts at that tick
 //! and is done (OUT_DONE_SEQ written) at the first tick at or after `start + duration`.
 //!
-//! # Program emulation
+//! # Programs
 //!
-//! The mock runs only the rig's own control program (recognised by
-//! [`rig_core::control::PROGRAM_MARKER`]); it emulates the register contract of
-//! [`rig_core::control`]: a changed IN_CMD_SEQ is acknowledged, a moveL sets OUT_STATUS Moving
-//! and OUT_DONE_SEQ when the TCP is at rest on the target, a Stop decelerates along the path
-//! with the commanded acceleration (stopl) and is done when at rest. Rejected (OUT_STATUS
-//! Rejected, OUT_DONE_SEQ = seq): an unknown kind; a moveL with a non-finite or non-positive
-//! speed or acceleration or a non-finite target; a Stop with a non-finite or non-positive
-//! acceleration. A moveL arriving during a move restarts from the current pose (like the
-//! program's `kill` + new `movel`). On start the program copies IN_CMD_SEQ into ACK and DONE.
-//! `rtde_set_watchdog` calls in the script are honoured on clock time while the program plays.
+//! The controller runs the URScript it is sent, with an interpreter for the subset of the
+//! language the rig's control program ([`rig_core::urscript::program`]) uses ([`urscript`]):
+//! one interpreter cycle per controller tick, threads, blocking `movel`/`stopl`/`sync`/`sleep`,
+//! registers, `set_tcp`, `rtde_set_watchdog`. What the rig's program does with the command
+//! registers of [`rig_core::control`] is therefore whatever its text says; nothing of it is
+//! emulated here. A script that does not compile never starts; a runtime error stops the
+//! program (both logged as errors with the line and statement). `rtde_set_watchdog` calls the
+//! program executes are honoured on clock time while it plays. Every input package that
+//! changes IN_CMD_SEQ is logged ([`Ur5e::commands_received`]), so a test can tell when a
+//! command reached the controller.
 //!
 //! # Faults ([`Faults`])
 //!
@@ -72,7 +75,7 @@
 //!
 //! Joint space (joint values are zeros), forces (`actual_TCP_force` is zero; the contact
 //! simulator supplies forces elsewhere), the binary robot-state stream real controllers send on
-//! the secondary interface, and any URScript other than the rig's program.
+//! the secondary interface, and URScript beyond the interpreter's subset ([`urscript`]).
 
 pub mod config;
 pub mod controller;
@@ -83,6 +86,7 @@ pub mod rtde_server;
 pub mod script;
 mod shared;
 pub mod snapshot;
+pub mod urscript;
 pub mod variables;
 
 use std::net::SocketAddr;
@@ -100,6 +104,7 @@ use controller::Controller;
 use shared::{FaultState, Shared};
 
 pub use config::Ur5eConfig;
+pub use controller::CommandReceived;
 pub use snapshot::ControllerSnapshot;
 
 /// A running simulated controller. Dropping it (or [`Ur5e::shutdown`]) stops every task.
@@ -144,6 +149,7 @@ impl Ur5e {
         let t0 = clock.now_ns();
         let controller = Controller::new(
             cfg.home_pose,
+            cfg.tool_offset,
             cfg.initial_robot_mode,
             u64::try_from(cfg.protective_stop_unlock_delay.as_nanos()).unwrap_or(u64::MAX),
             t0,
@@ -215,10 +221,36 @@ impl Ur5e {
     /// round to asking. A time before the kept history (2 s) gives its oldest tick; `None`
     /// before the first tick.
     pub fn tcp_pose_at(&self, t_ns: u64) -> Option<(u64, Pose)> {
+        self.poses_at(t_ns).map(|p| (p.t_ns, p.tcp))
+    }
+
+    /// Where the physical tool tip ([`Ur5eConfig::tool_offset`] from the flange) was at clock
+    /// time `t_ns`, as [`Self::tcp_pose_at`] gives the TCP: what the contact physics presses
+    /// with. It equals the TCP pose only when the program's TCP (`set_tcp`) matches the tool.
+    pub fn tip_pose_at(&self, t_ns: u64) -> Option<(u64, Pose)> {
+        self.poses_at(t_ns).map(|p| (p.t_ns, p.tip))
+    }
+
+    /// The physical tool tip at the current clock time (due ticks processed first), with the
+    /// time of the controller's last tick.
+    pub fn tip_pose_now(&self) -> (u64, Pose) {
+        self.shared.process_due_ticks(self.shared.clock.now_ns());
+        let c = self.shared.lock();
+        (c.t_ns, c.tip_pose())
+    }
+
+    fn poses_at(&self, t_ns: u64) -> Option<shared::TickPoses> {
         self.shared.process_due_ticks(self.shared.clock.now_ns());
         let poses = self.shared.poses.lock().unwrap_or_else(|p| p.into_inner());
-        let i = poses.partition_point(|(t, _)| *t <= t_ns);
+        let i = poses.partition_point(|p| p.t_ns <= t_ns);
         poses.get(i.saturating_sub(1)).copied()
+    }
+
+    /// Every input data package that changed IN_CMD_SEQ ([`rig_core::control::IN_CMD_SEQ`]),
+    /// oldest first, the last [`controller::COMMAND_LOG`] of them: when each command reached
+    /// the controller (e.g. how long a Stop took to arrive).
+    pub fn commands_received(&self) -> Vec<CommandReceived> {
+        self.shared.lock().commands_received()
     }
 
     /// The fault injector.

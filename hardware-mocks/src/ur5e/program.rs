@@ -1,152 +1,133 @@
-//! The rig's control program as the simulated controller reads it: whether an upload is the
-//! rig's own program (recognised by [`control::PROGRAM_MARKER`]), its `def` name and every
-//! `rtde_set_watchdog(variable, min_frequency, action)` call (URScript manual; `action`
-//! defaults to "pause"). The controller model ([`super::controller`]) emulates what the program
-//! does; the secondary interface ([`super::script`]) receives its text.
+//! The controller's side of the running program: one interpreter cycle per controller tick
+//! ([`Controller::run_program_cycle`]), and the [`Robot`] the interpreter acts on (registers,
+//! motion, TCP offset, watchdogs), implemented by the [`Controller`].
+//!
+//! Motion commands (URScript manual, "Module motion"): `movel` starts a new straight-line move
+//! of the TCP from where it is now, replacing any motion under way (a move still running after
+//! its thread was killed included, and a `stopl` deceleration); `stopl(a)` decelerates the
+//! current motion along its path with `a` (raised if needed so the TCP stops before the target,
+//! see [`super::motion::LinearMove::begin_stop`]).
 
-use rig_core::control;
+use rig_core::control::runtime_state;
+use rig_core::pose::Pose;
 
-/// What the watchdog does when its variable is not updated in time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum WatchdogAction {
-    Ignore,
-    Pause,
-    Stop,
-}
+use super::controller::{ActiveMotion, Controller, offset_by};
+use super::motion::LinearMove;
+use super::urscript::{Outcome, Robot, Watchdog};
 
-/// One `rtde_set_watchdog` call.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Watchdog {
-    pub variable: String,
-    pub min_hz: f64,
-    pub action: WatchdogAction,
-}
-
-/// A script the mock can run.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Script {
-    pub name: String,
-    pub watchdogs: Vec<Watchdog>,
-}
-
-/// Why a script is not run.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ScriptError {
-    #[error(
-        "script is not the rig's control program (no {:?} line): the mock only runs the rig's program",
-        control::PROGRAM_MARKER
-    )]
-    NotRigProgram,
-    #[error("bad rtde_set_watchdog call: {0}")]
-    BadWatchdog(String),
-}
-
-/// Whether `text` holds a complete top-level `def … end` block.
-pub fn is_complete(text: &str) -> bool {
-    let mut seen_def = false;
-    for line in text.lines() {
-        if line.starts_with("def ") {
-            seen_def = true;
-        } else if seen_def && line.trim_end() == "end" {
-            return true;
-        }
-    }
-    false
-}
-
-fn unquote(s: &str) -> Option<&str> {
-    let s = s.trim();
-    s.strip_prefix('"')
-        .and_then(|r| r.strip_suffix('"'))
-        .or_else(|| s.strip_prefix('\'').and_then(|r| r.strip_suffix('\'')))
-}
-
-fn parse_watchdog(args: &str) -> Result<Watchdog, ScriptError> {
-    let bad = || ScriptError::BadWatchdog(args.to_owned());
-    let parts: Vec<&str> = args.split(',').map(str::trim).collect();
-    if !(2..=3).contains(&parts.len()) {
-        return Err(bad());
-    }
-    let variable = unquote(parts[0]).ok_or_else(bad)?.to_owned();
-    let min_hz: f64 = parts[1].parse().map_err(|_| bad())?;
-    let action = match parts.get(2) {
-        None => WatchdogAction::Pause,
-        Some(a) => {
-            let a = a
-                .strip_prefix("action")
-                .map(|r| r.trim_start().trim_start_matches('='))
-                .unwrap_or(a);
-            match unquote(a).ok_or_else(bad)? {
-                "ignore" => WatchdogAction::Ignore,
-                "pause" => WatchdogAction::Pause,
-                "stop" => WatchdogAction::Stop,
-                _ => return Err(bad()),
+impl Controller {
+    /// Runs the program's threads for the cycle at `t_ns`. The program ending (its main thread
+    /// returned, or `halt`) or failing stops it; a failure is logged as an error naming the
+    /// line and statement.
+    pub(super) fn run_program_cycle(&mut self, t_ns: u64) {
+        let Some(mut interp) = self.interp.take() else {
+            return;
+        };
+        let outcome = interp.step(self);
+        let name = self.program.as_ref().map_or("", |p| p.name.as_str());
+        match outcome {
+            Ok(Outcome::Running) => {
+                // A step never clears `interp` itself; put the state back.
+                if self.runtime_state == runtime_state::PLAYING {
+                    self.interp = Some(interp);
+                }
+            }
+            Ok(Outcome::Finished) => {
+                tracing::info!(program = %name, "program finished");
+                self.stop_program(t_ns);
+            }
+            Ok(Outcome::Halted) => {
+                tracing::info!(program = %name, "program halted");
+                self.stop_program(t_ns);
+            }
+            Err(e) => {
+                let statement = self
+                    .program
+                    .as_ref()
+                    .map_or(String::new(), |p| p.line(e.line).to_owned());
+                tracing::error!(
+                    program = %name,
+                    line = e.line,
+                    statement = %statement,
+                    "URScript runtime error, program stopped: {e} (in `{statement}`)"
+                );
+                self.stop_program(t_ns);
             }
         }
-    };
-    Ok(Watchdog {
-        variable,
-        min_hz,
-        action,
-    })
+    }
 }
 
-/// Parse an uploaded script.
-pub fn parse(text: &str) -> Result<Script, ScriptError> {
-    if !text.lines().any(|l| l.trim() == control::PROGRAM_MARKER) {
-        return Err(ScriptError::NotRigProgram);
+impl Robot for Controller {
+    fn now_ns(&self) -> u64 {
+        self.t_ns
     }
-    let name = text
-        .lines()
-        .find_map(|l| l.strip_prefix("def "))
-        .and_then(|r| r.split('(').next())
-        .map(|n| n.trim().to_owned())
-        .filter(|n| !n.is_empty())
-        .unwrap_or_else(|| control::PROGRAM_NAME.to_owned());
-    let mut watchdogs = Vec::new();
-    for line in text.lines() {
-        let l = line.trim();
-        if l.starts_with('#') {
-            continue;
-        }
-        if let Some(rest) = l.strip_prefix("rtde_set_watchdog(") {
-            let args = rest.rsplit_once(')').map(|(a, _)| a).unwrap_or(rest);
-            watchdogs.push(parse_watchdog(args)?);
+    fn input_int(&self, n: usize) -> i32 {
+        self.in_int.get(n).copied().unwrap_or(0)
+    }
+    fn input_float(&self, n: usize) -> f64 {
+        self.in_double.get(n).copied().unwrap_or(0.0)
+    }
+    fn input_bool(&self, n: usize) -> bool {
+        n < 128 && (self.in_bits >> n) & 1 == 1
+    }
+    fn set_output_int(&mut self, n: usize, v: i32) {
+        if let Some(r) = self.out_int.get_mut(n) {
+            *r = v;
         }
     }
-    Ok(Script { name, watchdogs })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn parses_the_rigs_program_header_and_watchdog() {
-        let text = format!(
-            "def {}():\n  {}\n  rtde_set_watchdog(\"input_int_register_26\", 10.0, \"stop\")\n  while True:\n    sync()\n  end\nend\n",
-            control::PROGRAM_NAME,
-            control::PROGRAM_MARKER
-        );
-        assert!(is_complete(&text));
-        assert!(!is_complete(&text[..text.len() - 4]));
-        let s = parse(&text).unwrap();
-        assert_eq!(s.name, control::PROGRAM_NAME);
-        assert_eq!(
-            s.watchdogs,
-            vec![Watchdog {
-                variable: "input_int_register_26".into(),
-                min_hz: 10.0,
-                action: WatchdogAction::Stop
-            }]
-        );
-        assert_eq!(
-            parse("def f():\n  movel(p)\nend\n"),
-            Err(ScriptError::NotRigProgram)
-        );
-        assert_eq!(
-            parse_watchdog("\"x\", 5").unwrap().action,
-            WatchdogAction::Pause
-        );
+    fn set_output_float(&mut self, n: usize, v: f64) {
+        if let Some(r) = self.out_double.get_mut(n) {
+            *r = v;
+        }
+    }
+    fn set_output_bool(&mut self, n: usize, v: bool) {
+        if n < 128 {
+            self.out_bits = (self.out_bits & !(1u128 << n)) | ((v as u128) << n);
+        }
+    }
+    fn actual_tcp_pose(&self) -> Pose {
+        self.tcp_pose()
+    }
+    fn target_tcp_pose(&self) -> Pose {
+        // Tracking error is not modelled: the target is where the arm is.
+        self.tcp_pose()
+    }
+    fn tcp_offset(&self) -> Pose {
+        self.tcp_offset
+    }
+    fn set_tcp(&mut self, offset: Pose) {
+        // A motion under way keeps the TCP it started with (its flange path is unchanged);
+        // the reported TCP follows the new offset at once.
+        self.tcp_offset = offset;
+    }
+    fn movel(&mut self, target: Pose, a: f64, v: f64) -> u64 {
+        let id = self.next_motion_id;
+        self.next_motion_id += 1;
+        let start = offset_by(&self.flange, &self.tcp_offset);
+        self.motion = Some(ActiveMotion {
+            id,
+            mv: LinearMove::new(start, target, v, a, self.t_ns),
+            tcp: self.tcp_offset,
+            speed: v,
+            accel: a,
+        });
+        self.resume_move = None;
+        id
+    }
+    fn motion_running(&self, id: u64) -> bool {
+        self.motion.as_ref().is_some_and(|m| m.id == id)
+    }
+    fn stopl(&mut self, a: f64) {
+        let t = self.t_ns;
+        if let Some(m) = &mut self.motion {
+            m.mv.begin_stop(t, a);
+        }
+    }
+    fn at_rest(&self) -> bool {
+        self.motion.is_none()
+    }
+    fn set_watchdog(&mut self, w: Watchdog) {
+        self.watchdogs.retain(|x| x.variable != w.variable);
+        self.watchdogs.push(w);
     }
 }

@@ -42,9 +42,20 @@ pub(super) struct Shared {
     /// Clock time of the next tick to process; held while ticks are processed, so the
     /// controller task and [`Ur5e::snapshot_now`] never process one tick twice or out of order.
     pub(super) next_tick_ns: Mutex<u64>,
-    /// The TCP pose of each of the last [`POSE_HISTORY`] ticks, oldest first, for
-    /// [`Ur5e::tcp_pose_at`](super::Ur5e::tcp_pose_at).
-    pub(super) poses: Mutex<VecDeque<(u64, Pose)>>,
+    /// The reported TCP pose and the physical tool tip's pose of each of the last
+    /// [`POSE_HISTORY`] ticks, oldest first, for [`Ur5e::tcp_pose_at`](super::Ur5e::tcp_pose_at)
+    /// and [`Ur5e::tip_pose_at`](super::Ur5e::tip_pose_at).
+    pub(super) poses: Mutex<VecDeque<TickPoses>>,
+}
+
+/// The poses of one tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct TickPoses {
+    pub(super) t_ns: u64,
+    /// The TCP pose the controller reports.
+    pub(super) tcp: Pose,
+    /// Where the physical tool tip is.
+    pub(super) tip: Pose,
 }
 
 /// Ticks of TCP pose history kept: 2 s at 500 Hz, far more than any simulated device lags.
@@ -57,13 +68,21 @@ impl Shared {
         while *next <= now {
             let t_ns = *next;
             *next += self.tick_period_ns;
-            let snap = Arc::new(self.lock().tick(t_ns));
+            let (snap, tip) = {
+                let mut c = self.lock();
+                let snap = c.tick(t_ns);
+                (Arc::new(snap), c.tip_pose())
+            };
             {
                 let mut poses = self.poses.lock().unwrap_or_else(|p| p.into_inner());
                 if poses.len() == POSE_HISTORY {
                     poses.pop_front();
                 }
-                poses.push_back((t_ns, snap.actual_tcp_pose));
+                poses.push_back(TickPoses {
+                    t_ns,
+                    tcp: snap.actual_tcp_pose,
+                    tip,
+                });
             }
             // No receivers is fine: nobody streams yet.
             let _ = self.samples.send(snap);

@@ -12,3 +12,4 @@ mod optics_render;
 mod optics_sensors;
 mod rig_sim;
 mod ur5e;
+mod ur5e_program;

@@ -42,12 +42,10 @@ fn sphere() -> Arc<Indenter> {
     Arc::new(Indenter::builtin("sphere").unwrap())
 }
 
+/// The rig's own control program; its watchdog allows 100 s without a heartbeat (these tests
+/// write none).
 fn program() -> String {
-    format!(
-        "def {}():\n  {}\n  while True:\n    sync()\n  end\nend\n",
-        control::PROGRAM_NAME,
-        control::PROGRAM_MARKER
-    )
+    rig_core::urscript::program(0.01, None)
 }
 
 async fn upload_program(ur: &Ur5e) {

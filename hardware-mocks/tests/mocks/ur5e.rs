@@ -25,18 +25,16 @@ async fn running_mock() -> (Ur5e, ClockHandle) {
     (Ur5e::start(cfg, clock).await.unwrap(), handle)
 }
 
-fn program(watchdog: Option<(&str, f64, &str)>) -> String {
-    let wd = watchdog
-        .map(|(v, hz, a)| format!("  rtde_set_watchdog(\"{v}\", {hz}, \"{a}\")\n"))
-        .unwrap_or_default();
-    format!(
-        "def {}():\n  {}\n{wd}  while True:\n    sync()\n  end\nend\n",
-        control::PROGRAM_NAME,
-        control::PROGRAM_MARKER
-    )
+/// The rig's own control program (the exact text the rig uploads). Tests that write no
+/// heartbeat arm its watchdog at 0.01 Hz (100 s of silence allowed); the watchdog test uses the
+/// rig's 10 Hz.
+pub(crate) fn program(watchdog_min_hz: f64) -> String {
+    rig_core::urscript::program(watchdog_min_hz, None)
 }
 
-async fn upload(ur: &Ur5e, text: &str) {
+pub(crate) const NO_WATCHDOG: f64 = 0.01;
+
+pub(crate) async fn upload(ur: &Ur5e, text: &str) {
     let mut s = TcpStream::connect(ur.script_addr()).await.unwrap();
     s.write_all(text.as_bytes()).await.unwrap();
     s.shutdown().await.unwrap();
@@ -83,7 +81,13 @@ fn command_names() -> Vec<String> {
     n
 }
 
-fn command_values(seq: i32, kind: CommandKind, target: Pose, v: f64, a: f64) -> Vec<Value> {
+pub(crate) fn command_values(
+    seq: i32,
+    kind: CommandKind,
+    target: Pose,
+    v: f64,
+    a: f64,
+) -> Vec<Value> {
     let mut vals = vec![Value::Int32(seq), Value::Int32(kind as i32)];
     vals.extend(target.to_array().map(Value::Double));
     vals.push(Value::Double(v));
@@ -91,7 +95,7 @@ fn command_values(seq: i32, kind: CommandKind, target: Pose, v: f64, a: f64) -> 
     vals
 }
 
-async fn command_client(ur: &Ur5e) -> (RawClient, u8) {
+pub(crate) async fn command_client(ur: &Ur5e) -> (RawClient, u8) {
     let mut c = RawClient::connect(ur.rtde_addr()).await;
     c.handshake(2).await;
     let names = command_names();
@@ -101,7 +105,7 @@ async fn command_client(ur: &Ur5e) -> (RawClient, u8) {
     (c, id)
 }
 
-async fn send_command(ur: &Ur5e, c: &mut RawClient, id: u8, vals: &[Value]) {
+pub(crate) async fn send_command(ur: &Ur5e, c: &mut RawClient, id: u8, vals: &[Value]) {
     let seq = match vals[0] {
         Value::Int32(s) => s,
         _ => unreachable!(),
@@ -278,11 +282,14 @@ async fn data_packages_follow_controller_ticks_at_500_and_125_hz() {
 #[tokio::test]
 async fn movel_through_the_program_follows_the_trapezoid() {
     let (ur, h) = running_mock().await;
-    upload(&ur, &program(None)).await;
+    upload(&ur, &program(NO_WATCHDOG)).await;
     eventually("the program to play", || {
         ur.snapshot().runtime_state == runtime_state::PLAYING
     })
     .await;
+    // The program's first cycle takes the current seq as already done (as the rig waits for
+    // before its first command).
+    ur.step_ticks(&h, 1).await;
     let (mut c, id) = command_client(&ur).await;
     let home = Ur5eConfig::default().home_pose;
     let target = Pose {
@@ -370,7 +377,7 @@ async fn program_start_does_not_replay_a_stale_command() {
         &command_values(7, CommandKind::MoveL, target, 0.1, 1.0),
     )
     .await;
-    upload(&ur, &program(None)).await;
+    upload(&ur, &program(NO_WATCHDOG)).await;
     eventually("the program to play", || {
         ur.snapshot().runtime_state == runtime_state::PLAYING
     })
@@ -386,7 +393,7 @@ async fn program_start_does_not_replay_a_stale_command() {
 async fn watchdog_stops_the_program_when_heartbeats_stop() {
     let (ur, h) = running_mock().await;
     let hb = control::input_int(control::IN_HEARTBEAT);
-    upload(&ur, &program(Some((&hb, 10.0, "stop")))).await;
+    upload(&ur, &program(control::WATCHDOG_MIN_HZ)).await;
     eventually("the program to play", || {
         ur.snapshot().runtime_state == runtime_state::PLAYING
     })
@@ -416,11 +423,14 @@ async fn watchdog_stops_the_program_when_heartbeats_stop() {
 #[tokio::test]
 async fn protective_stop_mid_move_and_the_unlock_delay() {
     let (ur, h) = running_mock().await;
-    upload(&ur, &program(None)).await;
+    upload(&ur, &program(NO_WATCHDOG)).await;
     eventually("the program to play", || {
         ur.snapshot().runtime_state == runtime_state::PLAYING
     })
     .await;
+    // The program's first cycle takes the current seq as already done (as the rig waits for
+    // before its first command).
+    ur.step_ticks(&h, 1).await;
     let (mut c, id) = command_client(&ur).await;
     let home = Ur5eConfig::default().home_pose;
     let target = Pose {
@@ -500,7 +510,7 @@ async fn dashboard_powers_up_from_power_off() {
     assert_eq!(d.cmd("is in remote control").await, "true");
     assert_eq!(d.cmd("running").await, "Program running: false");
     assert_eq!(d.cmd("fly away").await, "could not understand: 'fly away'");
-    upload(&ur, &program(None)).await;
+    upload(&ur, &program(NO_WATCHDOG)).await;
     eventually("the program to play", || {
         ur.snapshot().runtime_state == runtime_state::PLAYING
     })
