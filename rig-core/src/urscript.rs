@@ -15,6 +15,9 @@
 //! - starts with ack = done = the current command seq, so an old command is never re-run;
 //! - runs each moveL (`movel(pose, a=, v=)`, URScript manual) in a thread, so the main loop
 //!   keeps polling and can `kill` the thread and decelerate with `stopl(a)` on a Stop command;
+//! - before any command, serves the safety supervisor's stop request
+//!   ([`control::IN_STOP_REQ`]): a changed counter kills the move in progress and decelerates
+//!   with `stopl(`[`control::IN_STOP_DECEL`]`)`, whatever command was being executed;
 //! - rejects commands with an unknown kind or a non-positive speed or acceleration
 //!   ([`ProgramStatus::Rejected`]);
 //! - calls `sync()` in every loop iteration so it yields once per controller cycle.
@@ -28,6 +31,10 @@
 //! wrong behaviour of the simulated robot.
 
 use crate::control::{self, CommandKind, ProgramStatus};
+
+/// Deceleration of a supervisor stop whose register holds no usable value, m/s²: the
+/// controller's own stop deceleration in the simulated UR5e (a category-2-like stop).
+pub const FALLBACK_STOP_DECEL: f64 = 3.0;
 
 /// The program text for a watchdog of at least `watchdog_min_hz` (a non-finite or non-positive
 /// rate gives [`control::WATCHDOG_MIN_HZ`]). With `tcp = Some([x, y, z, rx, ry, rz])` (metres,
@@ -50,6 +57,7 @@ pub fn program(watchdog_min_hz: f64, tcp: Option<[f64; 6]>) -> String {
     let p = control::IN_TARGET_POSE;
     let speed = control::IN_SPEED;
     let accel = control::IN_ACCEL;
+    let (stop_req, stop_decel) = (control::IN_STOP_REQ, control::IN_STOP_DECEL);
     let (k_move, k_stop) = (CommandKind::MoveL as i32, CommandKind::Stop as i32);
     let (s_idle, s_moving, s_rejected) = (
         ProgramStatus::Idle as i32,
@@ -64,6 +72,7 @@ pub fn program(watchdog_min_hz: f64, tcp: Option<[f64; 6]>) -> String {
         r#"def {name}():
   rtde_set_watchdog("{hb}", {hz}, "stop")
 {set_tcp}  global last_seq = read_input_integer_register({seq})
+  global last_stop = read_input_integer_register({stop_req})
   global move_seq = last_seq
   global move_target = get_actual_tcp_pose()
   global move_speed = 0.01
@@ -84,6 +93,21 @@ pub fn program(watchdog_min_hz: f64, tcp: Option<[f64; 6]>) -> String {
 
   mover = 0
   while True:
+    # The safety supervisor's stop comes first, whatever command is in progress.
+    stop = read_input_integer_register({stop_req})
+    if stop != last_stop:
+      last_stop = stop
+      if moving:
+        kill mover
+        moving = False
+      end
+      d = read_input_float_register({stop_decel})
+      if not (d > 0 and d < 1000000):
+        d = {fallback_decel}
+      end
+      stopl(d)
+      write_output_integer_register({status}, {s_idle})
+    end
     seq = read_input_integer_register({seq})
     if seq != last_seq:
       last_seq = seq
@@ -131,6 +155,7 @@ pub fn program(watchdog_min_hz: f64, tcp: Option<[f64; 6]>) -> String {
 end
 {name}()
 "#,
+        fallback_decel = fmt_f64(FALLBACK_STOP_DECEL),
         set_tcp = tcp.map_or(String::new(), |t| format!(
             "  set_tcp(p[{}])\n",
             t.map(fmt_f64).join(", ")

@@ -39,7 +39,7 @@ pub struct RunArgs {
     pub sim_ft: SimFt,
     /// Simulated rig only: inject a fault (a drill for operators, and the fault tests):
     /// KIND@TRAJECTORY/STAGE[+MS], KIND one of protective-stop, rtde-drop, ft-unplug,
-    /// camera-stall; MS is clock time after the stage starts. Repeatable.
+    /// camera-stall, supervisor-freeze; MS is clock time after the stage starts. Repeatable.
     #[arg(long, value_name = "FAULT")]
     pub sim_fault: Vec<crate::simrig::SimFault>,
     /// Serve a live view for the Foxglove app (Foxglove WebSocket) on this loopback address

@@ -64,8 +64,12 @@ pub struct RobotOptions {
     pub program_start_timeout: Duration,
     /// One dashboard command.
     pub dashboard_timeout: Duration,
-    /// Deceleration of `Robot::stop`, m/s².
+    /// Deceleration of `Robot::stop` and of the safety supervisor's stop, m/s².
     pub stop_accel_m_s2: f64,
+    /// The tool centre point the control program sets (`set_tcp`): flange → indenter tip,
+    /// `[x, y, z, rx, ry, rz]` in metres and radians (`robot.tcp_offset`). `None` leaves the
+    /// controller's TCP as the teach pendant's installation has it.
+    pub tcp_offset: Option<[f64; 6]>,
     /// RTDE link: connection attempts, first backoff, longest backoff, stall timeout.
     pub rtde_max_attempts: u32,
     pub rtde_backoff_initial: Duration,
@@ -88,6 +92,7 @@ impl Default for RobotOptions {
             program_start_timeout: Duration::from_secs(5),
             dashboard_timeout: Duration::from_secs(2),
             stop_accel_m_s2: 0.5,
+            tcp_offset: None,
             rtde_max_attempts: 20,
             rtde_backoff_initial: Duration::from_millis(100),
             rtde_backoff_max: Duration::from_secs(2),

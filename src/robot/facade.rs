@@ -311,7 +311,7 @@ impl Robot {
             accel_m_s2: 0.0,
         };
         self.write_cmd(&idle).await?;
-        let text = urscript::program(self.opts.watchdog_min_hz, None);
+        let text = urscript::program(self.opts.watchdog_min_hz, self.opts.tcp_offset);
         upload_program(
             self.endpoints.script,
             &text,

@@ -18,8 +18,10 @@
 //!   protective stop, emergency stop or program stop ends the move with an error that names
 //!   the move's label (trajectory and stage). After such a fault every move is refused until
 //!   [`Robot::recover`] has unlocked the stop and re-uploaded the program. A heartbeat is
-//!   written on every RTDE output cycle; the program arms the controller's RTDE watchdog on it
-//!   (`rtde_set_watchdog`), so the program stops if the rig goes silent.
+//!   written on every RTDE output cycle (by the robot's own task, or by the run's safety
+//!   supervisor once it holds the [`SafetyLine`]); the program arms the controller's RTDE
+//!   watchdog on it (`rtde_set_watchdog`), so the program stops if the heartbeat stops. The
+//!   same line carries the supervisor's stop request, served before any command.
 //!
 //! **Link loss during a move** ([`LinkLossPolicy`]): the reader task reconnects by itself.
 //! With [`LinkLossPolicy::ContinueIfSafe`] (the default) the move then resumes when that is

@@ -250,6 +250,9 @@ pub(super) async fn connect_robot(
         frequency_hz: Some(config.robot.rtde_frequency_hz),
         watchdog_min_hz: config.robot.watchdog_min_hz / speed,
         link_loss: crate::robot::LinkLossPolicy::Abort,
+        // The TCP is the indenter tip: the plan's waypoints, the envelope and the depth
+        // checks are all of the tip.
+        tcp_offset: config.robot.tcp_offset,
         ..Default::default()
     };
     let mut robot = Robot::connect(endpoints, robot_opts, clock.clone())

@@ -197,6 +197,15 @@ pub async fn run(
     summary.clock_holds = clock.hold_stats();
     summary.image_lag_max_ms = sim.as_ref().map(|s| s.image_lag_max_ms());
     pipeline.count_into(&mut summary, &rec);
+    if let Some(s) = &sim {
+        // When each supervisor stop reached the simulated controller.
+        let received = s.stop_requests_received();
+        for stop in &mut summary.safety_stops {
+            stop.reached_controller_ns = stop
+                .request
+                .and_then(|r| received.iter().find(|x| x.request == r).map(|x| x.t_ns));
+        }
+    }
     summary.retracts = retracts.lock().unwrap_or_else(|e| e.into_inner()).clone();
 
     // Orderly shutdown: streams, collector, recorder (every queued record written), rig.

@@ -123,6 +123,11 @@ impl RunningSimRig {
         self.rig.physics().stats().max_field_age_ns as f64 * 1e-6
     }
 
+    /// Every supervisor stop request the simulated controller received: (clock time, request).
+    pub fn stop_requests_received(&self) -> Vec<hardware_mocks::ur5e::StopRequestReceived> {
+        self.rig.ur5e_arc().stop_requests_received()
+    }
+
     pub async fn shutdown(self) {
         self.rig.shutdown().await;
     }

@@ -76,7 +76,7 @@ use rig_core::config::RigConfig;
 use rig_core::ft::netft;
 use rig_core::ft::transform::ToolTransform;
 use rig_core::indenter::Indenter;
-use rig_core::pose::{Pose, pose_trans};
+use rig_core::pose::{self, Pose, pose_trans};
 use tokio::task::JoinHandle;
 
 use crate::camera::{SimCamera, SimCameraConfig};
@@ -221,8 +221,16 @@ impl SimRig {
         let home = opts.home_pose.unwrap_or_else(|| {
             pose_above_surface(&frame, 0.0, 0.0, config.plan.approach_height_mm)
         });
+        // The simulated indenter is mounted as the config says: its tip is `robot.tcp_offset`
+        // from the flange (a lab rig's program sets the same TCP with `set_tcp`). `home` is
+        // where the tip starts; the controller starts with no TCP offset, at the flange.
+        let tool_offset = config
+            .robot
+            .tcp_offset
+            .map_or_else(Pose::default, Pose::from_array);
         let ur_cfg = Ur5eConfig {
-            home_pose: home,
+            home_pose: pose::pose_trans(&home, &pose::pose_inv(&tool_offset)),
+            tool_offset,
             initial_robot_mode: opts.initial_robot_mode,
             max_frequency_hz: config.robot.controller.max_rtde_frequency_hz(),
             ..Ur5eConfig::default()

@@ -69,7 +69,18 @@ pub struct CommandReceived {
     pub kind: i32,
 }
 
-/// Commands kept in [`Controller::commands_received`].
+/// One input data package that changed the safety supervisor's stop request
+/// ([`control::IN_STOP_REQ`]), as the controller received it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StopRequestReceived {
+    /// Clock time the package was applied, ns.
+    pub t_ns: u64,
+    /// The new value of the request counter.
+    pub request: i32,
+}
+
+/// Commands (and stop requests) kept in [`Controller::commands_received`] (and
+/// [`Controller::stop_requests_received`]).
 pub const COMMAND_LOG: usize = 4096;
 
 #[derive(Debug)]
@@ -111,6 +122,7 @@ pub struct Controller {
     /// Input variable → the RTDE connection whose input recipe holds it.
     input_owners: HashMap<String, u64>,
     commands: VecDeque<CommandReceived>,
+    stop_requests: VecDeque<StopRequestReceived>,
 }
 
 /// `pose_trans(p, offset)`, exactly `p` for the identity offset (no rounding through the
@@ -171,6 +183,7 @@ impl Controller {
             input_written_ns: HashMap::new(),
             input_owners: HashMap::new(),
             commands: VecDeque::new(),
+            stop_requests: VecDeque::new(),
         }
     }
 
@@ -192,6 +205,11 @@ impl Controller {
     /// The last [`COMMAND_LOG`] command-sequence changes received, oldest first.
     pub fn commands_received(&self) -> Vec<CommandReceived> {
         self.commands.iter().copied().collect()
+    }
+
+    /// The last [`COMMAND_LOG`] stop-request changes received, oldest first.
+    pub fn stop_requests_received(&self) -> Vec<StopRequestReceived> {
+        self.stop_requests.iter().copied().collect()
     }
 
     /// The state as the RTDE stream would report it now (without the package counter).
@@ -470,6 +488,7 @@ impl Controller {
         t_ns: u64,
     ) {
         let seq_before = self.in_int[control::IN_CMD_SEQ as usize];
+        let stop_before = self.in_int[control::IN_STOP_REQ as usize];
         for ((name, sink), value) in names.iter().zip(sinks).zip(values) {
             match (sink, value) {
                 (InputSink::Int(n), Value::Int32(v)) if *n < 48 => self.in_int[*n] = *v,
@@ -488,6 +507,14 @@ impl Controller {
                 _ => {}
             }
             self.input_written_ns.insert(name.clone(), t_ns);
+        }
+        let request = self.in_int[control::IN_STOP_REQ as usize];
+        if request != stop_before {
+            if self.stop_requests.len() == COMMAND_LOG {
+                self.stop_requests.pop_front();
+            }
+            self.stop_requests
+                .push_back(StopRequestReceived { t_ns, request });
         }
         let seq = self.in_int[control::IN_CMD_SEQ as usize];
         if seq != seq_before {

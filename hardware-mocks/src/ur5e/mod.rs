@@ -104,7 +104,7 @@ use controller::Controller;
 use shared::{FaultState, Shared};
 
 pub use config::Ur5eConfig;
-pub use controller::CommandReceived;
+pub use controller::{CommandReceived, StopRequestReceived};
 pub use snapshot::ControllerSnapshot;
 
 /// A running simulated controller. Dropping it (or [`Ur5e::shutdown`]) stops every task.
@@ -251,6 +251,13 @@ impl Ur5e {
     /// the controller (e.g. how long a Stop took to arrive).
     pub fn commands_received(&self) -> Vec<CommandReceived> {
         self.shared.lock().commands_received()
+    }
+
+    /// Every input data package that changed the stop request
+    /// ([`rig_core::control::IN_STOP_REQ`]), oldest first: when each supervisor stop reached
+    /// the controller.
+    pub fn stop_requests_received(&self) -> Vec<StopRequestReceived> {
+        self.shared.lock().stop_requests_received()
     }
 
     /// The fault injector.
