@@ -152,21 +152,23 @@ fn remove_dir_if_present(dir: &Path) -> std::io::Result<()> {
     }
 }
 
+/// The names in `dir`, sorted (tests of checkpoint sets).
+#[cfg(test)]
+pub(crate) fn entries(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn read(dir: &Path, name: &str) -> String {
         fs::read_to_string(dir.join(name)).unwrap()
-    }
-
-    fn entries(dir: &Path) -> Vec<String> {
-        let mut v: Vec<String> = fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        v.sort();
-        v
     }
 
     fn write_set(epoch: u32) -> impl FnOnce(&Path) -> anyhow::Result<()> {

@@ -129,6 +129,26 @@ coded_enum! {
     }
 }
 
+/// The command input recipe, in the order the rig writes it: seq, kind, target pose
+/// (6 doubles), speed, acceleration.
+pub fn command_recipe() -> Vec<String> {
+    let mut v = vec![input_int(IN_CMD_SEQ), input_int(IN_CMD_KIND)];
+    v.extend((0..6).map(|i| input_double(IN_TARGET_POSE + i)));
+    v.push(input_double(IN_SPEED));
+    v.push(input_double(IN_ACCEL));
+    v
+}
+
+/// The safety input recipe: heartbeat, stop request and stop deceleration, a recipe of its own
+/// so a heartbeat or a stop never rewrites a motion command.
+pub fn safety_recipe() -> Vec<String> {
+    vec![
+        input_int(IN_HEARTBEAT),
+        input_int(IN_STOP_REQ),
+        input_double(IN_STOP_DECEL),
+    ]
+}
+
 /// Register variable names as RTDE spells them.
 pub fn input_int(n: u32) -> String {
     format!("input_int_register_{n}")

@@ -29,27 +29,9 @@ use rig_core::rtde::Value;
 
 use super::state::{RobotState, robot_mode_name, runtime_state_name, safety_mode_name};
 
-/// The command input recipe: seq, kind, target pose (6 doubles), speed, acceleration.
-pub fn command_recipe() -> Vec<String> {
-    let mut v = vec![
-        control::input_int(control::IN_CMD_SEQ),
-        control::input_int(control::IN_CMD_KIND),
-    ];
-    v.extend((0..6).map(|i| control::input_double(control::IN_TARGET_POSE + i)));
-    v.push(control::input_double(control::IN_SPEED));
-    v.push(control::input_double(control::IN_ACCEL));
-    v
-}
-
-/// The safety input recipe: heartbeat, stop request and stop deceleration (a recipe of its own,
-/// so a heartbeat or a stop never rewrites a motion command; see [`super::SafetyLine`]).
-pub fn safety_recipe() -> Vec<String> {
-    vec![
-        control::input_int(control::IN_HEARTBEAT),
-        control::input_int(control::IN_STOP_REQ),
-        control::input_double(control::IN_STOP_DECEL),
-    ]
-}
+/// The input recipes of the register contract (see [`control::command_recipe`] and
+/// [`control::safety_recipe`]; the safety recipe is written through [`super::SafetyLine`]).
+pub use control::{command_recipe, safety_recipe};
 
 /// One command to write into the input registers.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,5 +1,5 @@
 //! The safety line: the heartbeat that feeds the controller's RTDE watchdog and the stop
-//! request, written together in one input recipe of their own ([`motion::safety_recipe`]).
+//! request, written together in one input recipe of their own ([`rig_core::control::safety_recipe`]).
 //!
 //! The control program reads two registers besides its commands (`rig_core::control`):
 //!
@@ -22,7 +22,6 @@ use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 
 use rig_core::rtde::Value;
 
-use super::motion;
 use super::rtde::{RtdeError, RtdeHandle};
 
 /// Index of the safety recipe in the RTDE client's input recipes (after the command recipe).
@@ -97,11 +96,6 @@ impl SafetyLine {
     /// Stop requests written so far.
     pub fn stops(&self) -> i32 {
         self.state.stop_req.load(Ordering::Acquire)
-    }
-
-    /// The recipe this line writes (for clients that build their own RTDE configuration).
-    pub fn recipe() -> Vec<String> {
-        motion::safety_recipe()
     }
 }
 

@@ -43,22 +43,11 @@ fn calibration_json(settings: &FrontEndSettings, description: &str) -> serde_jso
 /// The calibration keys in which a recording's and the open F/T's calibration differ, the front
 /// end's description (its address) aside.
 fn calibration_differences(recorded: &serde_json::Value, now: &serde_json::Value) -> Vec<String> {
-    let (Some(a), Some(b)) = (recorded.as_object(), now.as_object()) else {
-        return if recorded == now {
-            Vec::new()
-        } else {
-            vec!["the whole calibration".into()]
-        };
-    };
-    let mut keys: Vec<String> = a
-        .keys()
-        .chain(b.keys())
-        .filter(|k| *k != "front_end" && a.get(*k) != b.get(*k))
-        .cloned()
-        .collect();
-    keys.sort_unstable();
-    keys.dedup();
-    keys
+    match super::output::differing_top_keys(recorded, now, &["front_end"]) {
+        Some(keys) => keys,
+        None if recorded == now => Vec::new(),
+        None => vec!["the whole calibration".into()],
+    }
 }
 
 async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<Devices> {

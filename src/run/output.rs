@@ -167,25 +167,33 @@ fn prepare_output(
 }
 
 /// The top-level config sections in which two configs differ, for an operator message.
-fn differing_keys(a: &serde_json::Value, b: &serde_json::Value) -> String {
-    let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
-        return "the whole config".into();
-    };
-    let mut keys: Vec<&str> = a
+/// The top-level keys whose values differ between two JSON objects, sorted and each once,
+/// leaving out `ignore`; `None` when either is not an object.
+pub(super) fn differing_top_keys(
+    a: &serde_json::Value,
+    b: &serde_json::Value,
+    ignore: &[&str],
+) -> Option<Vec<String>> {
+    let (a, b) = (a.as_object()?, b.as_object()?);
+    let mut keys: Vec<String> = a
         .keys()
         .chain(b.keys())
-        .map(String::as_str)
-        .filter(|k| a.get(*k) != b.get(*k))
+        .filter(|k| !ignore.contains(&k.as_str()) && a.get(*k) != b.get(*k))
+        .cloned()
         .collect();
     keys.sort_unstable();
     keys.dedup();
-    if keys.is_empty() {
-        "the whole config".into()
-    } else {
-        keys.iter()
+    Some(keys)
+}
+
+fn differing_keys(a: &serde_json::Value, b: &serde_json::Value) -> String {
+    match differing_top_keys(a, b, &[]) {
+        Some(keys) if !keys.is_empty() => keys
+            .iter()
             .map(|k| format!("[{k}]"))
             .collect::<Vec<_>>()
-            .join(", ")
+            .join(", "),
+        _ => "the whole config".into(),
     }
 }
 

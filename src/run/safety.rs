@@ -228,14 +228,13 @@ impl Supervisor {
             self.raise(Trip::FtStalled { after_ms }, now).await;
         }
         let cam_stall = nanos(self.settings.camera_stall);
-        if self.camera && !self.camera_stalled {
-            if now.saturating_sub(self.last_frame_ns()) >= cam_stall {
-                self.camera_stalled = true;
-                let after_ms = self.settings.camera_stall.as_secs_f64() * 1e3;
-                self.raise(Trip::CameraStalled { after_ms }, now).await;
-            }
-        } else if self.camera_stalled && now.saturating_sub(self.last_frame_ns()) < cam_stall {
-            self.camera_stalled = false;
+        if self.camera
+            && !self.camera_stalled
+            && now.saturating_sub(self.last_frame_ns()) >= cam_stall
+        {
+            self.camera_stalled = true;
+            let after_ms = self.settings.camera_stall.as_secs_f64() * 1e3;
+            self.raise(Trip::CameraStalled { after_ms }, now).await;
         }
     }
 
@@ -255,6 +254,14 @@ impl Supervisor {
                     std::future::pending::<()>().await;
                 }
                 continue;
+            }
+            // A stalled camera that sends again is watched again (a stalled F/T, on its next
+            // sample).
+            if self.camera_stalled
+                && clock.now_ns().saturating_sub(self.last_frame_ns())
+                    < nanos(self.settings.camera_stall)
+            {
+                self.camera_stalled = false;
             }
             let deadline = self.stall_deadline();
             tokio::select! {

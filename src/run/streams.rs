@@ -207,7 +207,6 @@ pub struct StreamSettings {
 pub struct Streams {
     shared: Arc<safety::Shared>,
     trips_in: mpsc::UnboundedSender<Trip>,
-    counters: Arc<StreamCounters>,
     tare: TareHandle,
     tasks: Vec<JoinHandle<()>>,
     encoder: Option<std::thread::JoinHandle<()>>,
@@ -312,7 +311,6 @@ impl Streams {
         Self {
             shared,
             trips_in,
-            counters,
             tare,
             tasks,
             encoder,
@@ -389,12 +387,13 @@ impl Streams {
     }
 
     pub fn counters(&self) -> &Arc<StreamCounters> {
-        &self.counters
+        &self.shared.counters
     }
 
     /// Applies the force limit to untared samples too (the config asks for no tare).
     pub fn arm_force_limit(&self) {
-        self.counters
+        self.shared
+            .counters
             .force_limit_untared
             .store(true, Ordering::Release);
     }

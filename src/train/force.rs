@@ -663,15 +663,6 @@ mod tests {
         weights(&net)
     }
 
-    fn entries(dir: &Path) -> Vec<String> {
-        let mut v: Vec<String> = fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        v.sort();
-        v
-    }
-
     #[test]
     fn a_checkpoint_is_installed_whole_and_loads_back() {
         let tmp = tempfile::tempdir().unwrap();
@@ -686,7 +677,7 @@ mod tests {
             .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
             .collect();
         want.sort();
-        assert_eq!(entries(dir), want);
+        assert_eq!(crate::durable::entries(dir), want);
 
         let model = ForceModel::load(dir).unwrap();
         assert_eq!(model.info, info);

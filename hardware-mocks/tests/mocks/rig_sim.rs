@@ -60,13 +60,7 @@ async fn upload_program(ur: &Ur5e) {
 
 /// Writes a moveL into the rig program's command registers.
 async fn movel(ur: &Ur5e, seq: i32, target: Pose, v: f64, a: f64) -> RawClient {
-    let mut names = vec![
-        control::input_int(control::IN_CMD_SEQ),
-        control::input_int(control::IN_CMD_KIND),
-    ];
-    names.extend((0..6).map(|i| control::input_double(control::IN_TARGET_POSE + i)));
-    names.push(control::input_double(control::IN_SPEED));
-    names.push(control::input_double(control::IN_ACCEL));
+    let names = control::command_recipe();
     let refs: Vec<&str> = names.iter().map(String::as_str).collect();
     let mut c = RawClient::connect(ur.rtde_addr()).await;
     c.handshake(2).await;

@@ -68,19 +68,7 @@ impl Dashboard {
     }
 }
 
-/// Input recipe for the rig program's command registers, in this order: seq, kind, target
-/// pose ×6, speed, accel.
-fn command_names() -> Vec<String> {
-    let mut n = vec![
-        control::input_int(control::IN_CMD_SEQ),
-        control::input_int(control::IN_CMD_KIND),
-    ];
-    n.extend((0..6).map(|i| control::input_double(control::IN_TARGET_POSE + i)));
-    n.push(control::input_double(control::IN_SPEED));
-    n.push(control::input_double(control::IN_ACCEL));
-    n
-}
-
+/// One command's values, in [`control::command_recipe`] order.
 pub(crate) fn command_values(
     seq: i32,
     kind: CommandKind,
@@ -98,7 +86,7 @@ pub(crate) fn command_values(
 pub(crate) async fn command_client(ur: &Ur5e) -> (RawClient, u8) {
     let mut c = RawClient::connect(ur.rtde_addr()).await;
     c.handshake(2).await;
-    let names = command_names();
+    let names = control::command_recipe();
     let refs: Vec<&str> = names.iter().map(String::as_str).collect();
     let (id, types) = c.setup_inputs(&refs).await;
     assert!(id >= 1, "{types:?}");

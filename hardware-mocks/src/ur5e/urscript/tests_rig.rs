@@ -21,13 +21,7 @@ fn write(c: &mut Controller, names: &[String], values: &[Rtde]) {
 
 /// One command package as the rig sends it: seq, kind, target ×6, speed, accel.
 fn command(c: &mut Controller, seq: i32, kind: i32, target: Pose, v: f64, a: f64) {
-    let mut names = vec![
-        control::input_int(control::IN_CMD_SEQ),
-        control::input_int(control::IN_CMD_KIND),
-    ];
-    names.extend((0..6).map(|i| control::input_double(control::IN_TARGET_POSE + i)));
-    names.push(control::input_double(control::IN_SPEED));
-    names.push(control::input_double(control::IN_ACCEL));
+    let names = control::command_recipe();
     let mut vals = vec![Rtde::Int32(seq), Rtde::Int32(kind)];
     vals.extend(target.to_array().map(Rtde::Double));
     vals.push(Rtde::Double(v));
