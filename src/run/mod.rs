@@ -158,6 +158,7 @@ pub async fn run(
         tare_timeout: Duration::from_secs_f64(5.0 * speed),
         stage_tx: &pipeline.stage_tx,
         retracts: &retracts,
+        sim: sim.as_ref(),
     };
     if ctx.tare_samples == 0 {
         // No tare asked for: the readings are taken as they are, limit included.

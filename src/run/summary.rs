@@ -24,6 +24,10 @@ pub struct TrajectoryOutcome {
     pub wall_time_s: f64,
     /// What its recording holds.
     pub stats: TrajStats,
+    /// Simulated rig only: the largest distance of the simulated indenter's physical tip from
+    /// the planned segments, mm, over `sim_tip_samples` of the stages' RTDE states.
+    pub sim_tip_path_deviation_mm: Option<f64>,
+    pub sim_tip_samples: usize,
 }
 
 /// What a run did.

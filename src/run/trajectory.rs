@@ -23,6 +23,7 @@ use super::summary::{Retract, TrajectoryOutcome};
 use crate::plan::{Plan, Stage, StageName, Trajectory};
 use crate::record::Recorder;
 use crate::robot::{Move, MovesLog, Robot};
+use crate::simrig::RunningSimRig;
 
 /// Moves of one stage: a moveL to each waypoint after the first, with the waypoint it starts
 /// from. Labels read `<trajectory>/<stage>/<k>` so an error names both.
@@ -62,6 +63,12 @@ fn segment_distance(p: &nalgebra::Vector3<f64>, a: &Pose, b: &Pose) -> f64 {
     (p - (a + ab * s)).norm()
 }
 
+/// Distance (m) of `p` from the planned segment of the move labelled `label`.
+fn deviation(moves: &[(Move, Pose)], label: &str, p: &Pose) -> Option<f64> {
+    let (m, from) = moves.iter().find(|(m, _)| m.label == label)?;
+    Some(segment_distance(&p.position(), from, &m.pose))
+}
+
 /// Compare a trajectory's logged TCP path with its plan.
 pub fn assess(plan: &Plan, t: &Trajectory, log: &MovesLog) -> TrajectoryOutcome {
     let moves = trajectory_moves(t);
@@ -69,11 +76,11 @@ pub fn assess(plan: &Plan, t: &Trajectory, log: &MovesLog) -> TrajectoryOutcome 
     let mut max_dev: f64 = 0.0;
     let mut max_over: f64 = 0.0;
     for s in &log.samples {
-        let Some((m, from)) = moves.iter().find(|(m, _)| m.label == s.label) else {
+        let p = s.state.actual_tcp_pose;
+        let Some(d) = deviation(&moves, &s.label, &p) else {
             continue;
         };
-        let p = s.state.actual_tcp_pose;
-        max_dev = max_dev.max(segment_distance(&p.position(), from, &m.pose));
+        max_dev = max_dev.max(d);
         // Depth below the undeformed surface, in the surface frame (its +z is the normal).
         let local = pose::pose_trans(&frame_inv, &p);
         max_over = max_over.max(-local.z * 1e3 - t.depth_mm);
@@ -89,6 +96,8 @@ pub fn assess(plan: &Plan, t: &Trajectory, log: &MovesLog) -> TrajectoryOutcome 
         duration_s: (t_last.saturating_sub(t_first)) as f64 * 1e-9,
         wall_time_s: 0.0,
         stats: TrajStats::default(),
+        sim_tip_path_deviation_mm: None,
+        sim_tip_samples: 0,
     }
 }
 
@@ -130,6 +139,8 @@ pub(super) struct Ctx<'a> {
     pub stage_tx: &'a watch::Sender<Option<(String, StageName)>>,
     /// Every retract made, for the summary.
     pub retracts: &'a std::sync::Mutex<Vec<Retract>>,
+    /// The simulated rig, whose indenter tip each stage's path is checked against.
+    pub sim: Option<&'a RunningSimRig>,
 }
 
 /// Run `fut` (a motion) unless a trip comes first.
@@ -154,7 +165,7 @@ async fn run_trajectory(
     ctx: &Ctx<'_>,
     t: &Trajectory,
     transit: Option<Move>,
-) -> Result<(MovesLog, TrajStats), TrajectoryError> {
+) -> Result<(MovesLog, TrajStats, TipPath), TrajectoryError> {
     let mut trips = ctx.streams.trips();
     if let Some(transit) = transit {
         guarded(&mut trips, robot.run_moves(std::slice::from_ref(&transit))).await?;
@@ -193,6 +204,7 @@ async fn run_trajectory(
     let lost_before = ctx.streams.counters().recording_lost();
     let _ = ctx.collector.send(CollectCmd::Begin);
     let mut log = MovesLog::default();
+    let mut tip = TipPath::default();
     for stage in &t.stages {
         let moves: Vec<Move> = stage_moves(t, stage).into_iter().map(|(m, _)| m).collect();
         let t0 = ctx.clock.now_ns();
@@ -201,7 +213,21 @@ async fn run_trajectory(
             stage: stage.name,
         });
         ctx.stage_tx.send_replace(Some((t.id.clone(), stage.name)));
+        let n0 = log.samples.len();
         guarded(&mut trips, robot.run_moves_logged(&moves, &mut log)).await?;
+        // The simulated tip's path, read back while the controller's history still holds it.
+        if let Some(sim) = ctx.sim {
+            let planned = stage_moves(t, stage);
+            for s in &log.samples[n0..] {
+                let d = sim
+                    .tip_pose_at(s.state.t_host_ns)
+                    .and_then(|p| deviation(&planned, &s.label, &p));
+                if let Some(d) = d {
+                    tip.max_m = tip.max_m.max(d);
+                    tip.samples += 1;
+                }
+            }
+        }
     }
     let t_end_ns = log
         .samples
@@ -227,7 +253,15 @@ async fn run_trajectory(
              behind the streams: a stalled or very slow disk?)"
         )));
     }
-    Ok((log, stats))
+    Ok((log, stats, tip))
+}
+
+/// The simulated indenter tip's largest distance from the planned segments, m, over `samples`
+/// states.
+#[derive(Debug, Default)]
+struct TipPath {
+    max_m: f64,
+    samples: usize,
 }
 
 /// Stop the collector's writing of the open trajectory.
@@ -419,7 +453,7 @@ pub(super) async fn record(
         .begin(&t.id)
         .await
         .map_err(|e| TrajectoryError::Record(e.to_string()))?;
-    let (log, stats) = run_trajectory(robot, ctx, t, transit).await?;
+    let (log, stats, tip) = run_trajectory(robot, ctx, t, transit).await?;
     let counts = ctx
         .rec
         .finish(stats.frames_dropped)
@@ -429,6 +463,10 @@ pub(super) async fn record(
     outcome.poses_recorded = counts.poses;
     outcome.wall_time_s = wall_start.elapsed().as_secs_f64();
     outcome.stats = stats;
+    if ctx.sim.is_some() {
+        outcome.sim_tip_path_deviation_mm = Some(tip.max_m * 1e3);
+        outcome.sim_tip_samples = tip.samples;
+    }
     Ok(outcome)
 }
 

@@ -123,6 +123,12 @@ impl RunningSimRig {
         self.rig.physics().stats().max_field_age_ns as f64 * 1e-6
     }
 
+    /// Where the simulated indenter's tip (the physical tool, not the reported TCP) was at
+    /// clock time `t_ns`, while the controller's pose history (5 s) still holds it.
+    pub fn tip_pose_at(&self, t_ns: u64) -> Option<rig_core::pose::Pose> {
+        self.rig.ur5e_arc().tip_pose_at(t_ns).map(|(_, p)| p)
+    }
+
     /// Every supervisor stop request the simulated controller received: (clock time, request).
     pub fn stop_requests_received(&self) -> Vec<hardware_mocks::ur5e::StopRequestReceived> {
         self.rig.ur5e_arc().stop_requests_received()

@@ -367,3 +367,63 @@ fn a_blocked_recorder_does_not_delay_the_stop_on_a_force_limit_crossing() {
     let (id, why) = summary.failure.clone().unwrap();
     assert!(why.contains("force limit"), "{id}: {why}");
 }
+
+/// `robot.tcp_offset` of the rig's indenter: 100 mm along tool z.
+const TCP_LINE: (&str, &str) = (
+    "watchdog_min_hz = 10.0      # the controller stops motion if the rig talks less often than this",
+    "watchdog_min_hz = 10.0\ntcp_offset = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0]",
+);
+
+#[test]
+fn with_a_100_mm_tcp_offset_the_tip_follows_the_plan_and_the_envelope_applies_to_the_tip() {
+    let _rig = common::one_rig_at_a_time();
+    let tmp = tempfile::tempdir().unwrap();
+    let indenter = Indenter::load("cone").unwrap();
+    // The simulated indenter is mounted 100 mm from the flange; the program sets that TCP.
+    let cfg = common::edited_sim_config(tmp.path(), "tcp.toml", &[TCP_LINE]);
+    let config = RigConfig::load(&cfg).unwrap();
+    assert_eq!(
+        config.robot.tcp_offset,
+        Some([0.0, 0.0, 0.1, 0.0, 0.0, 0.0])
+    );
+    let opts = RunOptions {
+        limit: Some(1),
+        ..RunOptions::new(tmp.path().join("rec"))
+    };
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let summary = rt.block_on(run(&config, &indenter, &opts)).unwrap();
+    let t = summary
+        .trajectories
+        .first()
+        .unwrap_or_else(|| panic!("{}", summary.report()));
+    // Every state of every stage was checked against the physical tip (not the reported TCP),
+    // and the tip stayed within 0.05 mm of the planned lines. (Were the TCP the flange, the
+    // tip would be 100 mm deep in the gel, and the reported TCP 100 mm above the envelope.)
+    assert!(t.samples > 100, "{t:?}");
+    assert_eq!(t.sim_tip_samples, t.samples);
+    let dev = t.sim_tip_path_deviation_mm.unwrap();
+    eprintln!("tip path deviation {dev:.5} mm over {} states", t.samples);
+    assert!(dev < 0.05, "the tip left the plan by {dev:.4} mm");
+    assert!(
+        summary.safety_stops.is_empty(),
+        "{:?}",
+        summary.safety_stops
+    );
+
+    // The envelope applies to the tip: a floor 0.5 mm below the surface refuses the deeper
+    // presses (the flange, 100 mm above the tip, would be far inside it).
+    let cfg = common::edited_sim_config(
+        tmp.path(),
+        "tcp-floor.toml",
+        &[TCP_LINE, ("min_z = 0.199", "min_z = 0.1995")],
+    );
+    let config = RigConfig::load(&cfg).unwrap();
+    let err = rt
+        .block_on(run(&config, &indenter, &opts))
+        .expect_err("a plan whose tip leaves the envelope ran");
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("unsafe plan") && msg.contains("min_z"),
+        "{msg}"
+    );
+}

@@ -58,8 +58,9 @@ pub(super) struct TickPoses {
     pub(super) tip: Pose,
 }
 
-/// Ticks of TCP pose history kept: 2 s at 500 Hz, far more than any simulated device lags.
-pub(super) const POSE_HISTORY: usize = 1000;
+/// Ticks of TCP pose history kept: 5 s at 500 Hz, far more than any simulated device lags and
+/// longer than any stage of a plan, so a stage's path can be read back once it has ended.
+pub(super) const POSE_HISTORY: usize = 2500;
 
 impl Shared {
     /// Process every tick due at clock time `now`, in order, broadcasting each snapshot.
