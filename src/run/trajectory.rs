@@ -1,12 +1,14 @@
 //! One trajectory of a run: its moves, its recording, what goes wrong, and what is done about
 //! it.
 //!
-//! [`record`] moves the arm to the trajectory's start at approach height (off the gel), tares
-//! the F/T there, runs the four stages under watch of the streams' trips ([`guarded`]) while
-//! the collector writes their records, completes the file and compares the logged TCP path with
-//! the planned lines ([`assess`]). [`fail`] handles a failure: the open file is aborted and
-//! marked failed, then [`after_failure`] stops, recovers and retracts the arm as far as is safe
-//! and says whether the run must stop.
+//! [`record`] clears the gel (a retract along the surface normal if the arm is below the
+//! approach height), checks and runs the transit to the trajectory's start at approach height,
+//! tares the F/T there, runs the four stages under watch of the supervisor's trips
+//! ([`guarded`]) while the collector writes their records, completes the file and compares the
+//! logged TCP path with the planned lines ([`assess`]). [`fail`] handles a failure in safety's
+//! order: the stop first (after a trip), then [`after_failure`] recovers and retracts the arm
+//! as far as is safe and says whether the run must stop, and only then is the open file
+//! aborted and marked failed.
 
 use std::time::Duration;
 
@@ -470,9 +472,9 @@ pub(super) async fn record(
     Ok(outcome)
 }
 
-/// Trajectory `t` failed with `e`: stop writing it, mark it failed in the manifest (its partial
-/// file is removed), then stop, recover and retract the arm ([`after_failure`]). Returns why
-/// the run must stop, if it must.
+/// Trajectory `t` failed with `e`: stop the arm (after a trip), recover and retract it
+/// ([`after_failure`]), then stop writing the trajectory and mark it failed in the manifest
+/// (its partial file is removed). Returns why the run must stop, if it must.
 pub(super) async fn fail(
     robot: &mut Robot,
     ctx: &Ctx<'_>,
@@ -488,14 +490,17 @@ pub(super) async fn fail(
             tracing::error!("{}: stopping the arm: {se}", t.id);
         }
     }
-    abort_collector(ctx.collector).await;
     let reason = format!("{}: {}", t.id, e.reason());
     tracing::error!("trajectory {reason}");
+    // Off the gel before any bookkeeping: the aborts below wait on the recording, which a
+    // stalled disk can hold up indefinitely.
+    let stop = after_failure(robot, ctx, t, e).await;
+    abort_collector(ctx.collector).await;
     bar.suspend(|| eprintln!("trajectory {reason}"));
     if let Err(ae) = ctx.rec.abort(&e.reason()).await {
         tracing::error!("trajectory {}: could not mark it failed: {ae}", t.id);
     }
-    after_failure(robot, ctx, t, e).await
+    stop
 }
 
 /// After a failed trajectory (the arm already stopped after a trip): recover and retract the
