@@ -14,7 +14,10 @@
 //!   the direction the light comes from (azimuth from +x towards +y, elevation above the gel);
 //! - `background`: the colour of the flat, untouched gel and how uneven the illumination is;
 //! - `markers`: the printed dot pattern (square grid or hexagonal, spacing, dot size, offset of
-//!   the pattern, per-dot position jitter from a seed, dot colour).
+//!   the pattern, per-dot position jitter from a seed, dot colour);
+//! - `camera_offset_mm`: where the image centre sits on the gel (assembly tolerance);
+//! - `effects`: what the images show beyond shading (markers, shadows, blur, vignetting,
+//!   noise), so each sensor records exactly the effects its camera has.
 //!
 //! Every value has a default (the shipped source sensor's), so `[optics]` may name only what
 //! differs. [`OpticsConfig::problems`] checks the values and names the offending key.
@@ -49,6 +52,42 @@ pub struct OpticsConfig {
     pub background: BackgroundConfig,
     /// The printed marker pattern.
     pub markers: MarkerConfig,
+    /// Where the camera's image centre sits on the gel, mm in the surface frame (assembly
+    /// tolerance: a real sensor's camera is rarely centred on its gel to better than a few
+    /// tenths of a mm).
+    pub camera_offset_mm: [f64; 2],
+    /// Which image effects the simulated camera renders (`[optics.effects]`).
+    pub effects: EffectsConfig,
+}
+
+/// `[optics.effects]`: what the simulated camera's images show beyond the shading of the gel.
+/// A recording holds exactly these effects; an effect that is off costs nothing.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EffectsConfig {
+    /// Draw the printed markers (none are drawn when `optics.markers.pattern = "none"`).
+    pub markers: bool,
+    /// Shadows cast by the raised gel in the grazing LED light.
+    pub shadows: bool,
+    /// Defocus blur, Gaussian σ in pixels; 0: off.
+    pub blur_sigma_px: f64,
+    /// Darkening towards the image corners, fraction at the corner in [0, 1); 0: off.
+    pub vignetting: f64,
+    /// Camera noise, Gaussian σ in 8-bit levels; 0: off.
+    pub noise_sigma: f64,
+}
+
+impl Default for EffectsConfig {
+    /// A GelSight Mini's look: markers, shadows, 0.8 px blur, 25 % vignetting, noise σ 1.5.
+    fn default() -> Self {
+        Self {
+            markers: true,
+            shadows: true,
+            blur_sigma_px: 0.8,
+            vignetting: 0.25,
+            noise_sigma: 1.5,
+        }
+    }
 }
 
 /// `[[optics.leds]]`: one LED (or LED strip) lighting the gel from the side.
@@ -136,6 +175,8 @@ impl Default for OpticsConfig {
             ],
             background: BackgroundConfig::default(),
             markers: MarkerConfig::default(),
+            camera_offset_mm: [0.0, 0.0],
+            effects: EffectsConfig::default(),
         }
     }
 }
@@ -255,6 +296,37 @@ impl OpticsConfig {
                 format!("{u:?} must be in [0, 1)"),
             );
         }
+        if !self
+            .camera_offset_mm
+            .iter()
+            .all(|v| v.is_finite() && v.abs() <= 5.0)
+        {
+            push(
+                "optics.camera_offset_mm".into(),
+                format!(
+                    "{:?} must be two finite numbers within ±5 mm",
+                    self.camera_offset_mm
+                ),
+            );
+        }
+        let e = &self.effects;
+        for (key, v, max) in [
+            ("blur_sigma_px", e.blur_sigma_px, 10.0),
+            ("noise_sigma", e.noise_sigma, 64.0),
+        ] {
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
+                push(
+                    format!("optics.effects.{key}"),
+                    format!("{v:?} must be between 0 (off) and {max}"),
+                );
+            }
+        }
+        if !(e.vignetting.is_finite() && (0.0..1.0).contains(&e.vignetting)) {
+            push(
+                "optics.effects.vignetting".into(),
+                format!("{:?} must be in [0, 1) (0: off)", e.vignetting),
+            );
+        }
         let m = &self.markers;
         if m.pattern != MarkerPattern::None {
             let spacing_ok = m.spacing_mm.is_finite() && m.spacing_mm > 0.0;
@@ -356,6 +428,9 @@ mod tests {
         o.leds[2].rgb = [f64::NAN, 0.0, 0.0];
         o.markers.dot_diameter_mm = 2.0;
         o.background.uneven = 1.0;
+        o.camera_offset_mm = [0.2, f64::INFINITY];
+        o.effects.noise_sigma = -1.0;
+        o.effects.vignetting = 1.0;
         let keys: Vec<String> = o.problems().into_iter().map(|p| p.key).collect();
         assert_eq!(
             keys,
@@ -364,6 +439,9 @@ mod tests {
                 "optics.leds[1].elevation_deg",
                 "optics.leds[2].rgb",
                 "optics.background.uneven",
+                "optics.camera_offset_mm",
+                "optics.effects.noise_sigma",
+                "optics.effects.vignetting",
                 "optics.markers.dot_diameter_mm",
             ]
         );

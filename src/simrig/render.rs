@@ -11,7 +11,8 @@ use super::sim::contact::{ContactModel, FrictionModel};
 use super::sim::optics::ImageEffects;
 use super::sim::{Effects, IndenterPose, Scene};
 
-/// The scene of `rig sim render`: layer BEM, monotonic Coulomb friction, every image effect.
+/// The scene of `rig sim render`: layer BEM, monotonic Coulomb friction, and the image effects
+/// of the sensor's `[optics.effects]` (what its recordings show).
 pub fn render_scene(
     config: &RigConfig,
     indenter: Indenter,
@@ -28,11 +29,13 @@ pub fn render_scene(
             shear_mm,
         },
     );
-    scene.optics = Some(config.optics.clone().unwrap_or_default());
+    let optics = config.optics.clone().unwrap_or_default();
+    let effects = ImageEffects::from_optics(&optics);
+    scene.optics = Some(optics);
     scene.effects = Effects {
         contact: ContactModel::Layer,
         friction: FrictionModel::Monotonic,
-        image: Some(ImageEffects::realistic()),
+        image: Some(effects),
         ..Effects::default()
     };
     scene

@@ -232,10 +232,18 @@ fn a_full_disk_fails_the_trajectory_and_keeps_the_completed_ones() {
     let copy = tmp.path().join("copy");
     let rc = tmp.path().join("rc");
     let log = tmp.path().join("log");
-    // A trajectory file is about 4.8 MB: 7 MB holds the first and not the second. The tmpfs
-    // lives only in the namespace, so the result is copied out before it ends.
+    // The disk holds the first trajectory and half the second: its size is measured on a run
+    // of the first alone (it depends on what the frames show). The tmpfs lives only in the
+    // namespace, so the result is copied out before it ends.
+    let probe_dir = tmp.path().join("probe");
+    let probe = rig_run(&cfg, &probe_dir, 1, &[]);
+    assert!(probe.status.success(), "{}", text(&probe));
+    let one = std::fs::metadata(probe_dir.join(final_name(T1)))
+        .unwrap()
+        .len();
+    let size_kib = (one * 3 / 2).div_ceil(1024) + 64;
     let script = format!(
-        "mount -t tmpfs -o size=7m tmpfs {mnt} && \
+        "mount -t tmpfs -o size={size_kib}k tmpfs {mnt} && \
          {rig} run --indenter cone --config {cfg} --out {mnt}/run --limit 3 > {log} 2>&1; \
          echo $? > {rc}; cp -a {mnt}/run {copy}",
         mnt = mnt.display(),

@@ -52,7 +52,7 @@ fn render_writes_a_frame_and_prints_the_wrench_as_json() {
 }
 
 #[test]
-fn the_target_config_renders_the_same_contact_in_other_colours() {
+fn the_target_config_renders_the_same_contact_in_other_colours_on_its_stiffer_gel() {
     let dir = tempfile::tempdir().unwrap();
     let target = Path::new(env!("CARGO_MANIFEST_DIR")).join("rig-configs/sim-target.toml");
     let args = |cfg: Option<&str>, out: &'static str| {
@@ -83,8 +83,27 @@ fn the_target_config_renders_the_same_contact_in_other_colours() {
     };
     let s = run(args(None, "s.png"));
     let t = run(args(Some(target.to_str().unwrap()), "t.png"));
-    // Same gel, same contact: the same wrench.
-    assert_eq!(s.lines().next(), t.lines().next());
+    // The same contact on the same gel recipe: the target's gel batch is stiffer by its modulus
+    // ratio (rig-configs/sim-target.toml), and a displacement-controlled elastic contact's force
+    // scales with the modulus. The printed Fz has 4 decimals: 0.1 % of 0.14 N.
+    let fz = |out: &str| -> f64 {
+        let line = out.lines().next().unwrap();
+        line.split_whitespace().last().unwrap().parse().unwrap()
+    };
+    let ratio = fz(&t) / fz(&s);
+    let (e_s, e_t) = (
+        rig_core::config::RigConfig::sim_source()
+            .elastomer
+            .youngs_modulus_mpa,
+        rig_core::config::RigConfig::sim_target()
+            .elastomer
+            .youngs_modulus_mpa,
+    );
+    assert!(
+        (ratio - e_t / e_s).abs() < 2e-3,
+        "Fz ratio {ratio} vs modulus ratio {}",
+        e_t / e_s
+    );
     let a = image::open(dir.path().join("s.png")).unwrap().to_rgb8();
     let b = image::open(dir.path().join("t.png")).unwrap().to_rgb8();
     assert_ne!(a, b);

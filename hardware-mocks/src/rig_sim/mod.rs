@@ -108,8 +108,9 @@ pub struct SimRigOptions {
     pub netft_seed: u64,
     /// Start a simulated camera with this behaviour; `None`: no camera (and no surface field).
     pub camera: Option<SimCameraConfig>,
-    /// Image effects of the camera.
-    pub image_effects: ImageEffects,
+    /// Image effects of the camera; `None`: the sensor's own `[optics.effects]`
+    /// ([`ImageEffects::from_optics`]), so a recording shows what that sensor's camera shows.
+    pub image_effects: Option<ImageEffects>,
     /// Noise seed of the camera's images.
     pub image_seed: u64,
 }
@@ -124,7 +125,7 @@ impl Default for SimRigOptions {
             ft_front_end: SimFtFrontEnd::NetFt,
             netft_seed: 49152,
             camera: None,
-            image_effects: ImageEffects::default(),
+            image_effects: None,
             image_seed: 0,
         }
     }
@@ -305,12 +306,12 @@ impl SimRig {
 
         let camera = match &opts.camera {
             Some(cam_cfg) => {
-                let renderer = PhysicsRenderer::new(
-                    physics.clone(),
-                    config.optics.clone().unwrap_or_default(),
-                    opts.image_effects,
-                    opts.image_seed,
-                );
+                let optics = config.optics.clone().unwrap_or_default();
+                let effects = opts
+                    .image_effects
+                    .unwrap_or_else(|| ImageEffects::from_optics(&optics));
+                let renderer =
+                    PhysicsRenderer::new(physics.clone(), optics, effects, opts.image_seed);
                 Some(
                     SimCamera::spawn(clock.clone(), cam_cfg.clone(), Arc::new(renderer))
                         .map_err(|e| invalid(format!("simulated camera: {e}")))?,

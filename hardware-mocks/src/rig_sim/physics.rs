@@ -495,8 +495,7 @@ impl WrenchSource for ContactPhysics {
 /// physics must have been created with `want_field`).
 pub struct PhysicsRenderer {
     physics: ContactPhysics,
-    optics: OpticsConfig,
-    effects: ImageEffects,
+    renderer: optics::Renderer,
     noise_seed: u64,
     frames: AtomicU64,
 }
@@ -510,11 +509,17 @@ impl PhysicsRenderer {
     ) -> Self {
         Self {
             physics,
-            optics,
-            effects,
+            renderer: optics::Renderer::new(&optics, &effects),
             noise_seed,
             frames: AtomicU64::new(0),
         }
+    }
+}
+
+impl PhysicsRenderer {
+    /// What rendering has done so far, by effect.
+    pub fn stats(&self) -> optics::RenderStats {
+        self.renderer.stats()
     }
 }
 
@@ -523,12 +528,10 @@ impl FrameRenderer for PhysicsRenderer {
         // The field at the capture time, even when rendering runs late.
         let (_, field) = self.physics.field_at(t_ns)?;
         let n = self.frames.fetch_add(1, Ordering::Relaxed);
-        Some(optics::render(
-            &self.optics,
-            &self.effects,
-            &field,
-            self.noise_seed.wrapping_add(n),
-        ))
+        Some(
+            self.renderer
+                .render(&field, self.noise_seed.wrapping_add(n)),
+        )
     }
 }
 

@@ -13,7 +13,9 @@
 //! | image            | `effects.image` is `Some` (needs `scene.optics`)             |
 //!
 //! [`SimStats`] in every [`SimOutput`] counts the stages that ran (and the FFTs and solver
-//! iterations), so "a force-only scene does no rendering work" is a testable statement.
+//! iterations, and each image effect's work: pixels shaded, marker dots, shadow sweeps, blur
+//! passes, vignetting, noise samples), so "a force-only scene does no rendering work" and "an
+//! effect the sensor's config leaves off is not computed" are testable statements.
 //!
 //! - [`contact`]: contact mechanics (Hertz, Winkler layer, FFT boundary elements for a
 //!   half-space or a finite layer, Coulomb friction with history) producing the wrench and,
@@ -69,6 +71,13 @@ pub struct Simulator {
     contact: contact::ContactEngine,
     noise_seed: u64,
     frames: u64,
+    /// The renderer of the last optics and image effects (its cached background is reused
+    /// while they stay the same).
+    renderer: Option<(
+        rig_core::optics::OpticsConfig,
+        ImageEffects,
+        optics::Renderer,
+    )>,
 }
 
 impl std::fmt::Debug for Simulator {
@@ -116,7 +125,24 @@ impl Simulator {
             (Some(effects), Some(optics), Some(field)) => {
                 stats.images_rendered += 1;
                 let seed = self.noise_seed.wrapping_add(self.frames);
-                Some(optics::render(optics, effects, field, seed))
+                if self
+                    .renderer
+                    .as_ref()
+                    .is_none_or(|(o, e, _)| o != optics || e != effects)
+                {
+                    let r = optics::Renderer::new(optics, effects);
+                    self.renderer = Some((optics.clone(), *effects, r));
+                }
+                let (_, _, renderer) = self.renderer.as_ref().expect("just set");
+                let (img, r) = renderer.render_counted(field, seed);
+                let n = |v: u64| u32::try_from(v).unwrap_or(u32::MAX);
+                stats.shaded_pixels = n(r.shaded_pixels);
+                stats.markers_drawn = n(r.markers_drawn);
+                stats.shadow_sweeps = n(r.shadow_sweeps);
+                stats.blur_passes = n(r.blur_passes);
+                stats.vignette_frames = n(r.vignette_frames);
+                stats.noise_samples = n(r.noise_samples);
+                Some(img)
             }
             _ => None,
         };

@@ -89,6 +89,18 @@ pub struct SimStats {
     pub fields_built: u32,
     /// Images rendered.
     pub images_rendered: u32,
+    /// Pixels shaded, times LEDs (0 for an untouched gel: its image is cached).
+    pub shaded_pixels: u32,
+    /// Marker dots drawn.
+    pub markers_drawn: u32,
+    /// Shadow sweeps (one per LED).
+    pub shadow_sweeps: u32,
+    /// Blur passes (two per colour plane).
+    pub blur_passes: u32,
+    /// Frames darkened by the vignette.
+    pub vignette_frames: u32,
+    /// Camera-noise samples drawn.
+    pub noise_samples: u32,
     /// Whether the iterative solvers met their tolerance (true when none ran).
     pub converged: bool,
 }
@@ -197,6 +209,18 @@ impl ImageEffects {
             blur_sigma_px: 0.0,
             vignetting: 0.0,
             noise_sigma: 0.0,
+        }
+    }
+
+    /// What a sensor's `[optics.effects]` asks for (markers only if it has a marker pattern).
+    pub fn from_optics(optics: &OpticsConfig) -> Self {
+        let e = &optics.effects;
+        Self {
+            markers: e.markers && optics.markers.pattern != rig_core::optics::MarkerPattern::None,
+            shadows: e.shadows,
+            blur_sigma_px: e.blur_sigma_px,
+            vignetting: e.vignetting,
+            noise_sigma: e.noise_sigma,
         }
     }
 

@@ -45,6 +45,63 @@ fn a_force_only_scene_renders_nothing_and_builds_no_field() {
     assert!(out.field.is_none());
 }
 
+/// The image stage does exactly the work the sensor's `[optics.effects]` asks for: every
+/// effect that is off counts zero, every one that is on counts its work.
+#[test]
+fn image_effects_run_only_when_the_sensor_config_enables_them() {
+    use hardware_mocks::sim::ImageEffects;
+    use rig_core::config::RigConfig;
+    use rig_core::optics::{EffectsConfig, MarkerPattern};
+
+    let stats_for = |effects: EffectsConfig, pattern: MarkerPattern, depth: f64| {
+        let mut optics = RigConfig::sim_source().optics.unwrap();
+        optics.effects = effects;
+        optics.markers.pattern = pattern;
+        let mut s = scene("sphere", ContactModel::Winkler, depth);
+        s.effects.image = Some(ImageEffects::from_optics(&optics));
+        s.optics = Some(optics);
+        let out = Simulator::new().step(&s, 0.0).unwrap();
+        assert_eq!(out.stats.images_rendered, 1);
+        out.stats
+    };
+    let none = EffectsConfig {
+        markers: false,
+        shadows: false,
+        blur_sigma_px: 0.0,
+        vignetting: 0.0,
+        noise_sigma: 0.0,
+    };
+    let st = stats_for(none, MarkerPattern::Grid, 0.6);
+    assert!(st.shaded_pixels > 1000, "{st:?}");
+    let idle = [
+        st.markers_drawn,
+        st.shadow_sweeps,
+        st.blur_passes,
+        st.vignette_frames,
+        st.noise_samples,
+    ];
+    assert_eq!(idle, [0; 5], "{st:?}");
+
+    let all = EffectsConfig::default();
+    let st = stats_for(all, MarkerPattern::Grid, 0.6);
+    assert!(st.markers_drawn > 100, "{st:?}");
+    assert_eq!(st.shadow_sweeps, 3, "one per LED: {st:?}");
+    assert_eq!(st.blur_passes, 6, "two per colour plane: {st:?}");
+    assert_eq!(st.vignette_frames, 1);
+    assert_eq!(st.noise_samples, 320 * 240 * 3);
+
+    // A sensor without printed markers draws none even with the effect on.
+    let st = stats_for(all, MarkerPattern::None, 0.6);
+    assert_eq!(st.markers_drawn, 0, "{st:?}");
+    // An untouched gel is the cached image: nothing shaded, only the noise is new.
+    let st = stats_for(all, MarkerPattern::Grid, 0.0);
+    assert_eq!(
+        (st.shaded_pixels, st.shadow_sweeps, st.blur_passes),
+        (0, 0, 0)
+    );
+    assert_eq!(st.noise_samples, 320 * 240 * 3);
+}
+
 #[test]
 fn a_requested_field_is_consistent_with_the_wrench() {
     let mut s = scene("sphere", ContactModel::HalfSpace, 0.5);

@@ -1,20 +1,22 @@
 //! The two shipped simulated sensors (rig-configs/sim-source.toml, sim-target.toml) image the
-//! same contact differently — colours and marker layout — while the contact region coincides:
-//! the domain gap the TransForce translator is meant to close, and nothing more.
+//! same contact differently — colours, marker layout and (here) camera placement — while the
+//! contact region coincides once the cameras' offsets are taken into account: the domain gap
+//! the TransForce translator is meant to close.
 
 use hardware_mocks::sim::contact::SurfaceField;
 use hardware_mocks::sim::optics::{
-    ImageEffects, background, geometric_field, marker_centres_mm, render,
+    ImageEffects, background, geometric_field, marker_centres_mm, mm_to_px, render,
 };
 use rig_core::config::{ElastomerConfig, RigConfig};
 use rig_core::indenter::Indenter;
 use rig_core::optics::OpticsConfig;
 
+/// The shipped sensors, the target's camera mounted 0.3 mm off the gel centre (as a real
+/// sensor's may be: `optics.camera_offset_mm`).
 fn sensors() -> (OpticsConfig, OpticsConfig) {
-    (
-        RigConfig::sim_source().optics.unwrap(),
-        RigConfig::sim_target().optics.unwrap(),
-    )
+    let mut target = RigConfig::sim_target().optics.unwrap();
+    target.camera_offset_mm = [0.25, -0.15];
+    (RigConfig::sim_source().optics.unwrap(), target)
 }
 
 fn contact() -> SurfaceField {
@@ -41,6 +43,24 @@ fn changed(img: &image::RgbImage, bg: &image::RgbImage, threshold: u32) -> Vec<b
         .collect()
 }
 
+/// Where the target's camera sees what the source's sees at pixel (0, 0), rounded: the
+/// cameras' offsets on the gel, in pixels.
+fn camera_shift_px(s: &OpticsConfig, t: &OpticsConfig) -> [i64; 2] {
+    let (a, b) = (mm_to_px(s, [0.0, 0.0]), mm_to_px(t, [0.0, 0.0]));
+    [(b[0] - a[0]).round() as i64, (b[1] - a[1]).round() as i64]
+}
+
+/// `mask` moved by `d` pixels (what was at (u, v) is at (u + d0, v + d1)); 320 × 240.
+fn shifted(mask: &[bool], d: [i64; 2]) -> Vec<bool> {
+    let (w, h) = (320i64, 240i64);
+    (0..w * h)
+        .map(|p| {
+            let (u, v) = (p % w - d[0], p / w - d[1]);
+            (0..w).contains(&u) && (0..h).contains(&v) && mask[(v * w + u) as usize]
+        })
+        .collect()
+}
+
 fn iou(a: &[bool], b: &[bool]) -> f64 {
     let inter = a.iter().zip(b).filter(|(x, y)| **x && **y).count();
     let union = a.iter().zip(b).filter(|(x, y)| **x || **y).count();
@@ -63,6 +83,8 @@ fn both_sensors_share_the_geometry() {
     let (s, t) = sensors();
     assert_eq!((s.width_px, s.height_px), (t.width_px, t.height_px));
     assert_eq!(s.mm_per_px, t.mm_per_px);
+    // The target's camera sits a fraction of a mm off the gel centre: 8 and 5 pixels.
+    assert_eq!(camera_shift_px(&s, &t), [-8, -5]);
     assert_ne!(s.leds, t.leds);
     assert_ne!(s.markers, t.markers);
     assert_ne!(s.background, t.background);
@@ -81,12 +103,19 @@ fn the_same_contact_differs_in_colour_but_not_in_where_it_is() {
     let dist = ((0..3).map(|k| (ms[k] - mt[k]).powi(2)).sum::<f64>()).sqrt();
     assert!(dist > 15.0, "mean colours {ms:?} vs {mt:?}");
 
-    // The contact region (difference from each sensor's own background) coincides.
+    // The contact region (difference from each sensor's own background) coincides once moved
+    // by the cameras' offset, and only then.
     let (cs, ct) = (changed(&img_s, &bg_s, 24), changed(&img_t, &bg_t, 24));
     let n = cs.iter().filter(|&&c| c).count();
     assert!(n > 3000, "{n} contact pixels");
-    let overlap = iou(&cs, &ct);
+    let moved = shifted(&cs, camera_shift_px(&s, &t));
+    let overlap = iou(&moved, &ct);
     assert!(overlap > 0.75, "contact masks overlap only {overlap:.2}");
+    let unmoved = iou(&cs, &ct);
+    assert!(
+        unmoved < overlap - 0.1,
+        "{unmoved:.2} without the offset, {overlap:.2} with"
+    );
 }
 
 #[test]
@@ -119,6 +148,6 @@ fn the_marker_layouts_differ_and_the_contact_still_coincides_with_markers_on() {
         changed(&render(&s, &fx, &field, 0), &bg_s, 24),
         changed(&render(&t, &fx, &field, 0), &bg_t, 24),
     );
-    let overlap = iou(&cs, &ct);
+    let overlap = iou(&shifted(&cs, camera_shift_px(&s, &t)), &ct);
     assert!(overlap > 0.7, "contact masks overlap only {overlap:.2}");
 }

@@ -3,12 +3,14 @@
 //! top of it, and everything on; printed as a table and plotted as SVG (`render_fps.svg`).
 //!
 //! The surface field is computed once (finite-layer BEM, sphere at 0.6 mm with 0.5 mm shear),
-//! so the numbers are the optics alone. Release builds only give meaningful numbers.
+//! so the numbers are the optics alone, rendered the way the simulated camera renders: one
+//! [`Renderer`] per sensor and effect set (its untouched-gel image and buffers kept), one frame
+//! after another on one thread. Release builds only give meaningful numbers.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
-use crate::simrig::sim::optics::{ImageEffects, render};
+use crate::simrig::sim::optics::{ImageEffects, Renderer};
 use anyhow::Context;
 use clap::Args;
 use plotters::prelude::*;
@@ -103,11 +105,12 @@ pub fn measure(min_time_s: f64) -> anyhow::Result<Vec<RenderResult>> {
         let o = optics.with_resolution(w, h);
         for (name, fx) in effect_sets() {
             // One warm-up frame, then as many as fit in the time (at least 3).
-            let _ = render(&o, &fx, &field, 0);
+            let renderer = Renderer::new(&o, &fx);
+            let _ = renderer.render(&field, 0);
             let start = Instant::now();
             let mut n = 0u64;
             while n < 3 || start.elapsed().as_secs_f64() < min_time_s {
-                let _ = render(&o, &fx, &field, n);
+                let _ = renderer.render(&field, n);
                 n += 1;
             }
             results.push(RenderResult {

@@ -12,6 +12,8 @@ pub(crate) struct Raster {
     pub width: usize,
     pub height: usize,
     pub mm_per_px: f64,
+    /// The image centre on the gel, mm (`optics.camera_offset_mm`).
+    pub offset_mm: [f64; 2],
 }
 
 impl Raster {
@@ -22,33 +24,167 @@ impl Raster {
         } else {
             OpticsConfig::default().mm_per_px
         };
+        let offset_mm = optics
+            .camera_offset_mm
+            .map(|v| if v.is_finite() { v } else { 0.0 });
         Self {
             width: side(optics.width_px),
             height: side(optics.height_px),
             mm_per_px,
+            offset_mm,
         }
     }
 
     pub fn x_mm(&self, u: usize) -> f64 {
-        (u as f64 + 0.5 - self.width as f64 / 2.0) * self.mm_per_px
+        (u as f64 + 0.5 - self.width as f64 / 2.0) * self.mm_per_px + self.offset_mm[0]
     }
 
     pub fn y_mm(&self, v: usize) -> f64 {
-        (self.height as f64 / 2.0 - v as f64 - 0.5) * self.mm_per_px
+        (self.height as f64 / 2.0 - v as f64 - 0.5) * self.mm_per_px + self.offset_mm[1]
+    }
+
+    /// Fractional pixel position (column, row) of a surface point, mm: the inverse of
+    /// [`Self::x_mm`], [`Self::y_mm`].
+    pub fn px_of(&self, x_mm: f64, y_mm: f64) -> [f64; 2] {
+        [
+            (x_mm - self.offset_mm[0]) / self.mm_per_px + self.width as f64 / 2.0 - 0.5,
+            self.height as f64 / 2.0 - 0.5 - (y_mm - self.offset_mm[1]) / self.mm_per_px,
+        ]
     }
 }
 
-/// The gel surface at every pixel, in the camera's view: `height_mm` is how far the surface
-/// has come towards the camera (`−uz`, ≥ 0 where pressed), `grad` its gradient, `shift` the
-/// tangential displacement (ux, uy).
+/// Below these a cell does not change the image (so the renderer leaves its pixels as the
+/// background): a slope of 2·10⁻⁴ shades by under 0.05 of an 8-bit level, a tangential shift of
+/// 10⁻⁴ mm moves a marker edge by 0.003 px, and a height under 1 µm casts no shadow (the shadow
+/// march ignores it too).
+const ACTIVE_SLOPE: f32 = 2e-4;
+const ACTIVE_SHIFT_MM: f32 = 1e-4;
+const ACTIVE_HEIGHT_MM: f32 = 1e-3;
+
+/// A surface field as the renderer reads it: per cell of the field's grid, height (`−uz`, mm),
+/// its gradient (central differences), and the tangential displacement (mm), in `f32`.
+pub(crate) struct CellField {
+    nx: usize,
+    ny: usize,
+    inv_cell: f64,
+    origin_mm: [f64; 2],
+    /// `[h, ∂h/∂x, ∂h/∂y, ux, uy]` per cell, `k = j·nx + i`.
+    cells: Vec<[f32; 5]>,
+    /// Cells that change the image: `(i0, i1, j0, j1)`, inclusive; `None`: none does.
+    active: Option<(usize, usize, usize, usize)>,
+}
+
+impl CellField {
+    /// `None` when the field is malformed (wrong lengths, bad grid): it renders as untouched.
+    /// Non-finite values read as zero.
+    pub fn new(field: &SurfaceField) -> Option<Self> {
+        let usable = field.nx > 0
+            && field.ny > 0
+            && field.cell_mm.is_finite()
+            && field.cell_mm > 0.0
+            && field.origin_mm.iter().all(|v| v.is_finite())
+            && [&field.uz_mm, &field.ux_mm, &field.uy_mm]
+                .iter()
+                .all(|v| v.len() == field.nx * field.ny);
+        if !usable {
+            return None;
+        }
+        let (nx, ny, cell) = (field.nx, field.ny, field.cell_mm as f32);
+        let clean = |v: f64| if v.is_finite() { v as f32 } else { 0.0 };
+        let h: Vec<f32> = field.uz_mm.iter().map(|&u| -clean(u)).collect();
+        let mut cells = vec![[0f32; 5]; nx * ny];
+        let (mut i0, mut i1, mut j0, mut j1) = (usize::MAX, 0, usize::MAX, 0);
+        for j in 0..ny {
+            for i in 0..nx {
+                let k = j * nx + i;
+                let at = |ii: usize, jj: usize| h[jj * nx + ii];
+                let dx = if nx < 2 {
+                    0.0
+                } else {
+                    let (a, b) = (i.saturating_sub(1), (i + 1).min(nx - 1));
+                    (at(b, j) - at(a, j)) / ((b - a) as f32 * cell)
+                };
+                let dy = if ny < 2 {
+                    0.0
+                } else {
+                    let (a, b) = (j.saturating_sub(1), (j + 1).min(ny - 1));
+                    (at(i, b) - at(i, a)) / ((b - a) as f32 * cell)
+                };
+                let c = [h[k], dx, dy, clean(field.ux_mm[k]), clean(field.uy_mm[k])];
+                if c[0].abs() > ACTIVE_HEIGHT_MM
+                    || c[1].abs().max(c[2].abs()) > ACTIVE_SLOPE
+                    || c[3].abs().max(c[4].abs()) > ACTIVE_SHIFT_MM
+                {
+                    (i0, i1, j0, j1) = (i0.min(i), i1.max(i), j0.min(j), j1.max(j));
+                }
+                cells[k] = c;
+            }
+        }
+        Some(Self {
+            nx,
+            ny,
+            inv_cell: 1.0 / field.cell_mm,
+            origin_mm: field.origin_mm,
+            cells,
+            active: (i0 <= i1).then_some((i0, i1, j0, j1)),
+        })
+    }
+
+    /// Bilinear value at a surface point (mm); zero more than half a cell outside the grid.
+    pub fn sample(&self, x_mm: f64, y_mm: f64) -> [f32; 5] {
+        let (Some((i0, i1, tx)), Some((j0, j1, ty))) = (
+            bracket((x_mm - self.origin_mm[0]) * self.inv_cell, self.nx),
+            bracket((y_mm - self.origin_mm[1]) * self.inv_cell, self.ny),
+        ) else {
+            return [0.0; 5];
+        };
+        self.lerp(i0, i1, tx, j0, j1, ty)
+    }
+
+    fn lerp(&self, i0: usize, i1: usize, tx: f32, j0: usize, j1: usize, ty: f32) -> [f32; 5] {
+        let nx = self.nx;
+        let (a, b, c, d) = (
+            &self.cells[j0 * nx + i0],
+            &self.cells[j0 * nx + i1],
+            &self.cells[j1 * nx + i0],
+            &self.cells[j1 * nx + i1],
+        );
+        let mut s = [0f32; 5];
+        for q in 0..5 {
+            let top = a[q] + (b[q] - a[q]) * tx;
+            let bottom = c[q] + (d[q] - c[q]) * tx;
+            s[q] = top + (bottom - top) * ty;
+        }
+        s
+    }
+}
+
+/// Pixel rectangle `[u0, u1) × [v0, v1)`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(crate) struct Region {
+    pub u0: usize,
+    pub u1: usize,
+    pub v0: usize,
+    pub v1: usize,
+}
+
+/// The gel surface at every pixel, in the camera's view, as planes (one value per pixel, row
+/// major): `height_mm` is how far the surface has come towards the camera (`−uz`, ≥ 0 where
+/// pressed), `gx`, `gy` its gradient. Only `region` is filled (zero elsewhere): the pixels over
+/// the cells that change the image. Kept between frames by the renderer (its planes are
+/// reused; [`resample_into`] clears what the last frame wrote).
+#[derive(Default)]
 pub(crate) struct PixelField {
     pub height_mm: Vec<f32>,
-    pub grad: Vec<[f32; 2]>,
-    pub shift_mm: Vec<[f32; 2]>,
+    pub gx: Vec<f32>,
+    pub gy: Vec<f32>,
     /// Largest height anywhere, mm (bounds the shadow ray march).
     pub max_height_mm: f32,
-    /// Whether the field is flat and still (every value zero): the renderer can skip work.
+    /// Whether the field leaves the image untouched: the renderer skips all contact work.
     pub flat: bool,
+    pub region: Region,
+    /// The field on its own grid, for point lookups (marker dots); `None` when flat.
+    pub cells: Option<CellField>,
 }
 
 /// The two cells either side of fractional cell index `f` on an axis of `n` cells, and the
@@ -64,95 +200,102 @@ fn bracket(f: f64, n: usize) -> Option<(usize, usize, f32)> {
 }
 
 /// Resamples `field` (bilinear; zero outside its grid, non-finite values read as zero) at the
-/// pixel centres of `raster`. Gradients are taken on the field's own grid by central
-/// differences and then interpolated, so a coarse field still shades smoothly.
-pub(crate) fn resample(field: &SurfaceField, raster: &Raster) -> PixelField {
-    let n = raster.width * raster.height;
-    let usable = field.nx > 0
-        && field.ny > 0
-        && field.cell_mm.is_finite()
-        && field.cell_mm > 0.0
-        && field.origin_mm.iter().all(|v| v.is_finite())
-        && [&field.uz_mm, &field.ux_mm, &field.uy_mm]
-            .iter()
-            .all(|v| v.len() == field.nx * field.ny);
-    if !usable {
-        return PixelField {
+/// pixel centres of `raster`, over the pixels the field's active cells can reach, into `out`.
+/// Gradients are taken on the field's own grid by central differences and then interpolated,
+/// so a coarse field still shades smoothly.
+pub(crate) fn resample_into(field: &SurfaceField, raster: &Raster, out: &mut PixelField) {
+    let (w, n) = (raster.width, raster.width * raster.height);
+    if out.height_mm.len() != n {
+        *out = PixelField {
             height_mm: vec![0.0; n],
-            grad: vec![[0.0; 2]; n],
-            shift_mm: vec![[0.0; 2]; n],
-            max_height_mm: 0.0,
-            flat: true,
+            gx: vec![0.0; n],
+            gy: vec![0.0; n],
+            ..PixelField::default()
         };
-    }
-    let (nx, ny, cell) = (field.nx, field.ny, field.cell_mm);
-    let clean = |v: f64| if v.is_finite() { v as f32 } else { 0.0 };
-    // Per cell: height (−uz), dh/dx, dh/dy, ux, uy.
-    let h: Vec<f32> = field.uz_mm.iter().map(|&u| -clean(u)).collect();
-    let mut cells = vec![[0f32; 5]; nx * ny];
-    let mut flat = true;
-    for j in 0..ny {
-        for i in 0..nx {
-            let k = j * nx + i;
-            let at = |ii: usize, jj: usize| h[jj * nx + ii];
-            let dx = if nx < 2 {
-                0.0
-            } else {
-                let (a, b) = (i.saturating_sub(1), (i + 1).min(nx - 1));
-                (at(b, j) - at(a, j)) / ((b - a) as f32 * cell as f32)
-            };
-            let dy = if ny < 2 {
-                0.0
-            } else {
-                let (a, b) = (j.saturating_sub(1), (j + 1).min(ny - 1));
-                (at(i, b) - at(i, a)) / ((b - a) as f32 * cell as f32)
-            };
-            let c = [h[k], dx, dy, clean(field.ux_mm[k]), clean(field.uy_mm[k])];
-            flat &= c.iter().all(|&v| v == 0.0);
-            cells[k] = c;
+    } else {
+        // Clear what the last frame wrote.
+        let r = out.region;
+        for v in r.v0..r.v1 {
+            let row = v * w + r.u0..v * w + r.u1;
+            out.height_mm[row.clone()].fill(0.0);
+            out.gx[row.clone()].fill(0.0);
+            out.gy[row].fill(0.0);
         }
     }
-    let mut out = PixelField {
-        height_mm: vec![0.0; n],
-        grad: vec![[0.0; 2]; n],
-        shift_mm: vec![[0.0; 2]; n],
-        max_height_mm: 0.0,
-        flat,
+    out.max_height_mm = 0.0;
+    out.flat = true;
+    out.region = Region::default();
+    out.cells = None;
+    let Some(cells) = CellField::new(field) else {
+        return;
     };
-    if flat {
-        return out;
-    }
-    let inv_cell = 1.0 / cell;
-    for v in 0..raster.height {
-        let y = raster.y_mm(v);
-        let Some((j0, j1, ty)) = bracket((y - field.origin_mm[1]) * inv_cell, ny) else {
+    let Some((i0, i1, j0, j1)) = cells.active else {
+        return;
+    };
+    // Pixels whose bilinear support touches an active cell: within one cell of its centre.
+    let cell = field.cell_mm;
+    let x_lo = field.origin_mm[0] + (i0 as f64 - 1.0) * cell;
+    let x_hi = field.origin_mm[0] + (i1 as f64 + 1.0) * cell;
+    let y_lo = field.origin_mm[1] + (j0 as f64 - 1.0) * cell;
+    let y_hi = field.origin_mm[1] + (j1 as f64 + 1.0) * cell;
+    let (wf, hf) = (raster.width as f64, raster.height as f64);
+    let col = |x: f64| raster.px_of(x, 0.0)[0].clamp(0.0, wf);
+    let row = |y: f64| raster.px_of(0.0, y)[1].clamp(0.0, hf);
+    let region = Region {
+        u0: col(x_lo).floor() as usize,
+        u1: (col(x_hi).ceil() as usize + 1).min(raster.width),
+        v0: row(y_hi).floor() as usize,
+        v1: (row(y_lo).ceil() as usize + 1).min(raster.height),
+    };
+    out.flat = false;
+    out.region = region;
+    let cols: Vec<Option<(usize, usize, f32)>> = (region.u0..region.u1)
+        .map(|u| {
+            bracket(
+                (raster.x_mm(u) - field.origin_mm[0]) * cells.inv_cell,
+                cells.nx,
+            )
+        })
+        .collect();
+    // Per row: the field interpolated between its two cell rows first (once per cell), then
+    // each pixel between two of those.
+    let mut line = vec![[0f32; 3]; cells.nx];
+    let mut max_h = 0f32;
+    for v in region.v0..region.v1 {
+        let Some((j0, j1, ty)) = bracket(
+            (raster.y_mm(v) - field.origin_mm[1]) * cells.inv_cell,
+            cells.ny,
+        ) else {
             continue;
         };
-        for u in 0..raster.width {
-            let x = raster.x_mm(u);
-            let Some((i0, i1, tx)) = bracket((x - field.origin_mm[0]) * inv_cell, nx) else {
+        let (a, b) = (
+            &cells.cells[j0 * cells.nx..(j0 + 1) * cells.nx],
+            &cells.cells[j1 * cells.nx..(j1 + 1) * cells.nx],
+        );
+        for ((o, a), b) in line.iter_mut().zip(a).zip(b) {
+            for q in 0..3 {
+                o[q] = a[q] + (b[q] - a[q]) * ty;
+            }
+        }
+        let row = v * w + region.u0..v * w + region.u1;
+        let (hs, gxs, gys) = (
+            &mut out.height_mm[row.clone()],
+            &mut out.gx[row.clone()],
+            &mut out.gy[row],
+        );
+        for (k, c) in cols.iter().enumerate() {
+            let Some((i0, i1, tx)) = *c else {
                 continue;
             };
-            let (a, b, c, d) = (
-                &cells[j0 * nx + i0],
-                &cells[j0 * nx + i1],
-                &cells[j1 * nx + i0],
-                &cells[j1 * nx + i1],
-            );
-            let mut s = [0f32; 5];
-            for q in 0..5 {
-                let top = a[q] + (b[q] - a[q]) * tx;
-                let bottom = c[q] + (d[q] - c[q]) * tx;
-                s[q] = top + (bottom - top) * ty;
-            }
-            let p = v * raster.width + u;
-            out.height_mm[p] = s[0];
-            out.grad[p] = [s[1], s[2]];
-            out.shift_mm[p] = [s[3], s[4]];
-            out.max_height_mm = out.max_height_mm.max(s[0]);
+            let (a, b) = (line[i0], line[i1]);
+            hs[k] = a[0] + (b[0] - a[0]) * tx;
+            gxs[k] = a[1] + (b[1] - a[1]) * tx;
+            gys[k] = a[2] + (b[2] - a[2]) * tx;
+            max_h = max_h.max(hs[k]);
         }
     }
-    out
+    out.max_height_mm = max_h;
+    out.cells = Some(cells);
 }
 
 /// A geometric stand-in for the contact solver, for tests and previews: the gel takes the
