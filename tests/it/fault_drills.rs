@@ -232,10 +232,11 @@ fn a_full_disk_fails_the_trajectory_and_keeps_the_completed_ones() {
     let copy = tmp.path().join("copy");
     let rc = tmp.path().join("rc");
     let log = tmp.path().join("log");
-    // A trajectory file is about 4.8 MB: 7 MB holds the first and not the second. The tmpfs
-    // lives only in the namespace, so the result is copied out before it ends.
+    // A trajectory file is about 0.7 MB (zstd-chunked protobuf; 4.8 MB in the first, JSON
+    // format): 1 MiB holds the first and not the second. The tmpfs lives only in the
+    // namespace, so the result is copied out before it ends.
     let script = format!(
-        "mount -t tmpfs -o size=7m tmpfs {mnt} && \
+        "mount -t tmpfs -o size=1m tmpfs {mnt} && \
          {rig} run --indenter cone --config {cfg} --out {mnt}/run --limit 3 > {log} 2>&1; \
          echo $? > {rc}; cp -a {mnt}/run {copy}",
         mnt = mnt.display(),
