@@ -164,9 +164,8 @@ impl<'a> Value<'a> {
     pub fn vector3(self) -> Result<[f64; 3], String> {
         let mut v = [0.0; 3];
         for f in fields(self.as_bytes()?) {
-            match f? {
-                (k @ 1..=3, x) => v[k as usize - 1] = x.as_f64()?,
-                _ => {}
+            if let (k @ 1..=3, x) = f? {
+                v[k as usize - 1] = x.as_f64()?;
             }
         }
         Ok(v)

@@ -30,8 +30,11 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
-/// Frames (seq → format, bytes) and paired wrenches (by frame) of a file.
-fn contents(path: &Path) -> (BTreeMap<i64, (ImageFormat, Vec<u8>)>, BTreeMap<i64, Paired>) {
+/// Frames by sequence number: format and image bytes.
+type Frames = BTreeMap<i64, (ImageFormat, Vec<u8>)>;
+
+/// Frames and paired wrenches (by frame) of a file.
+fn contents(path: &Path) -> (Frames, BTreeMap<i64, Paired>) {
     let bytes = std::fs::read(path).unwrap();
     let (mut frames, mut paired) = (BTreeMap::new(), BTreeMap::new());
     for m in messages(&bytes).unwrap() {
