@@ -33,8 +33,9 @@
 //!
 //! **A frame, from the camera to the MCAP file.** The camera's reader thread (V4L2, or the
 //! simulated camera) stamps each frame and counts sequence gaps ([`camera::Frame`]); the
-//! camera task of [`run::streams`] watches for stalls and hands it to the PNG encoder thread
-//! ([`record::png`]); the collector ([`run::collector`]) gives it to the pairer
+//! camera task of [`run::streams`] watches for stalls and hands it to the encoder thread
+//! ([`run::streams::stored_image`]: an MJPEG camera's JPEG as received, else lossless PNG,
+//! [`record::png`]); the collector ([`run::collector`]) gives it to the pairer
 //! ([`sync::Pairer`]), which maps its time onto the rig clock and interpolates the wrench at
 //! it; the collector queues the frame, its paired wrench (and on the simulated rig its true
 //! wrench) on the [`record::Recorder`], whose writer thread writes them into the trajectory's

@@ -4,10 +4,12 @@
 //!
 //! What it speaks (the protocol's core; no client publishing, services or parameters): on
 //! connect the server sends `serverInfo` and one `advertise` listing every channel of a
-//! recording ([`crate::record::CHANNELS`]: JSON messages with their JSON schemas). A client
-//! `subscribe`s with its own subscription ids and `unsubscribe`s them; each record then goes
-//! to it as a binary `messageData` frame: opcode `0x01`, the subscription id (u32 LE), the log
-//! time (u64 LE, ns) and the JSON body the recording holds.
+//! recording ([`crate::record::CHANNELS`], with the recording's encodings: `protobuf`
+//! messages, each schema its `FileDescriptorSet` in base64 with `schemaEncoding` `protobuf`,
+//! as the protocol specifies for protobuf channels). A client `subscribe`s with its own
+//! subscription ids and `unsubscribe`s them; each record then goes to it as a binary
+//! `messageData` frame: opcode `0x01`, the subscription id (u32 LE), the log time (u64 LE, ns)
+//! and the protobuf body the recording holds.
 //!
 //! It never slows the run: [`LiveView::publish`] encodes a record only when somebody
 //! subscribes to its topic, once for all clients, and hands it to each client's bounded queue
@@ -48,7 +50,8 @@ use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode;
 use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
 use crate::record::Record;
-use crate::record::channels::{CHANNELS, schema_text};
+use crate::record::channels::{CHANNELS, ENCODING, schema_data};
+use crate::record::legacy::base64;
 
 mod origin;
 #[cfg(test)]
@@ -147,34 +150,22 @@ pub struct LiveView {
 fn channel_id(topic: &str) -> Option<u32> {
     CHANNELS
         .iter()
-        .position(|(t, _, _)| *t == topic)
+        .position(|(t, _)| *t == topic)
         .map(|i| i as u32 + 1)
-}
-
-fn topic_of(rec: &Record) -> &'static str {
-    use crate::record::channels as c;
-    match rec {
-        Record::Frame { .. } => c::TOPIC_IMAGE,
-        Record::Wrench { .. } => c::TOPIC_WRENCH,
-        Record::Pose { .. } => c::TOPIC_POSE,
-        Record::Paired(_) => c::TOPIC_PAIRED,
-        Record::Stage { .. } => c::TOPIC_STAGE,
-        Record::Truth { .. } => c::TOPIC_TRUTH,
-    }
 }
 
 fn advertise() -> String {
     let channels: Vec<serde_json::Value> = CHANNELS
         .iter()
         .enumerate()
-        .map(|(i, (topic, schema_name, schema))| {
+        .map(|(i, (topic, schema_name))| {
             serde_json::json!({
                 "id": i as u32 + 1,
                 "topic": topic,
-                "encoding": "json",
+                "encoding": ENCODING,
                 "schemaName": schema_name,
-                "schema": schema_text(schema),
-                "schemaEncoding": "jsonschema",
+                "schema": base64(&schema_data(schema_name)),
+                "schemaEncoding": ENCODING,
             })
         })
         .collect();
@@ -258,7 +249,7 @@ impl LiveView {
     /// frame to each client's bounded queue with `try_send`: a full queue drops the frame
     /// (counted in [`LiveStats::dropped`]) instead of waiting for the client.
     pub fn publish(&self, rec: &Record) {
-        let Some(cid) = channel_id(topic_of(rec)) else {
+        let Some(cid) = channel_id(rec.topic()) else {
             return;
         };
         let targets: Vec<(u32, mpsc::Sender<Message>)> = {

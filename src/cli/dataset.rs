@@ -1,10 +1,11 @@
-//! `rig dataset check`: the command over [`crate::dataset`].
+//! `rig dataset check` and `rig dataset export`: the commands over [`crate::dataset`].
 
 use std::path::PathBuf;
 
 use anyhow::bail;
 use clap::{Args, Subcommand};
 
+use crate::dataset::export::{ExportFormat, default_out, export};
 use crate::dataset::{CheckOptions, check_with, failure, render};
 
 /// Arguments of `rig dataset`.
@@ -30,6 +31,19 @@ pub enum DatasetCommand {
         #[arg(long, value_name = "P", value_parser = parse_pct)]
         max_error_pct: Option<f64>,
     },
+    /// Write a dataset out in another layout: `folder` is one directory per trajectory with its
+    /// frames as image files (as stored: PNG, or JPEG from an MJPEG camera) and `force.csv`
+    /// (per frame: time, paired wrench, stage, pairing status, TCP pose).
+    Export {
+        /// The dataset directory (`rig run --out DIR`).
+        dir: PathBuf,
+        /// The layout to write.
+        #[arg(long, value_enum)]
+        format: ExportFormat,
+        /// Output directory (must not exist or be empty; default: `<DIR>-<format>` beside DIR).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
 }
 
 fn parse_pct(s: &str) -> Result<f64, String> {
@@ -43,6 +57,20 @@ fn parse_pct(s: &str) -> Result<f64, String> {
 
 pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
     match &args.what {
+        DatasetCommand::Export { dir, format, out } => {
+            let out = out.clone().unwrap_or_else(|| default_out(dir, *format));
+            let report = export(dir, &out, *format)?;
+            let frames: usize = report.trajectories.iter().map(|(_, n)| n).sum();
+            println!(
+                "exported {} trajectories ({frames} frames) to {}",
+                report.trajectories.len(),
+                out.display()
+            );
+            for (id, status) in &report.skipped {
+                println!("skipped {id}: {status}");
+            }
+            Ok(())
+        }
         DatasetCommand::Check {
             dir,
             json,

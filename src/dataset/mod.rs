@@ -36,9 +36,12 @@
 
 //!
 //! The files: [`check`] reads and judges, [`truth`] compares with the simulator's truth,
-//! [`report`] renders; the command is `crate::cli::dataset`.
+//! [`report`] renders, [`export`] writes a dataset out in other tools' layouts (`rig dataset
+//! export`); the command is `crate::cli::dataset`. Both read recordings of either format
+//! (protobuf, or the first JSON one) through [`crate::record::reader`].
 
 mod check;
+pub mod export;
 mod report;
 mod truth;
 

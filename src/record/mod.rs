@@ -1,12 +1,15 @@
 //! Recording: one MCAP file per trajectory, a run manifest, resume, and a bounded writer.
 //!
 //! - [`channels`]: the six channels (frames, wrench, TCP pose, paired wrench, stage labels and,
-//!   on the simulated rig, the true wrench), their JSON schemas and message bodies ([`Record`]).
-//! - [`png`]: the lossless frame encoding of the recordings.
-//! - [`writer`]: [`TrajectoryWriter`] writes `.<id>.mcap.partial`, then fsyncs and renames it to
-//!   `<id>.mcap` when the trajectory completes.
+//!   on the simulated rig, the true wrench), their schemas and protobuf bodies ([`Record`]).
+//! - [`proto`]: the hand-written protobuf encoder, field reader and `FileDescriptorSet`s.
+//! - [`png`]: the lossless PNG of raw-pixel frames, and decoding either stored image format.
+//! - [`writer`]: [`TrajectoryWriter`] writes `.<id>.mcap.partial` (zstd chunks, indexed), then
+//!   fsyncs and renames it to `<id>.mcap` when the trajectory completes; a failed write never
+//!   panics (see its module doc).
 //! - [`reader`]: the one reader of trajectory files ([`read_file`], [`reader::messages`]), for
-//!   `rig dataset check`, `--resume` and the trainer.
+//!   `rig dataset check`, `rig dataset export`, `--resume` and the trainer; it reads today's
+//!   protobuf files and the first format's JSON ones ([`legacy`]).
 //! - [`manifest`]: `manifest.json` (config, calibration, indenter, sensor, software version and
 //!   every trajectory's status), written atomically ([`crate::durable`]).
 //! - [`resume`]: which planned trajectories are complete and which must be redone.
@@ -19,25 +22,25 @@
 //! `Channel::log` returns nothing: a failed write to a sink is only reported through a
 //! `tracing` warning ("error logging message") and the message is gone. A recorder that must fail
 //! a trajectory on a full disk, and never keep a file that silently lost frames, needs the error
-//! at the write, which the `mcap` crate's `Writer::write_to_known_channel` returns. The `mcap`
-//! crate (without default features: uncompressed, no C dependencies) also leaves the file's life
-//! (partial name, fsync, rename) to us and builds in seconds. The price is that the Foxglove
-//! schemas are written out here as JSON schemas (`foxglove.CompressedImage`,
-//! `foxglove.PoseInFrame`) rather than taken from the SDK's protobuf descriptors, and images are
-//! base64 in JSON (a third larger than raw bytes); the Foxglove app reads both. The live view
-//! (Foxglove WebSocket) is a separate concern and can still use the `foxglove` crate.
+//! at the write, which the `mcap` crate's `Writer::write_to_known_channel` returns (through the
+//! writer's error-recording sink, [`writer`]). The `mcap` crate (with its `zstd` feature only)
+//! also leaves the file's life (partial name, fsync, rename) to us. The Foxglove schemas are
+//! written out here ([`proto`]) rather than taken from the SDK; the live view (Foxglove
+//! WebSocket) advertises the same channels and encodings.
 
 pub mod channels;
+pub mod legacy;
 pub mod manifest;
 pub mod pipeline;
 pub mod png;
+pub mod proto;
 pub mod reader;
 pub mod resume;
 pub mod synthetic;
 pub mod writer;
 
 pub use channels::{
-    CHANNELS, Record, TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_WRENCH,
+    CHANNELS, ImageFormat, Record, TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_WRENCH,
 };
 pub use manifest::{Counts, MANIFEST_NAME, Manifest, SensorInfo, Status, TrajectoryEntry};
 pub use pipeline::{Recorder, RecorderConfig, RecorderStats, WriterGate};

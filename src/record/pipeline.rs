@@ -54,6 +54,9 @@ pub struct RecorderConfig {
     pub queue_capacity: usize,
     /// Optional gate in front of every write (see [`WriterGate`]).
     pub gate: Option<WriterGate>,
+    /// Drill: each trajectory file fails with an I/O error once it would pass this many bytes
+    /// (a chunk write failing mid-trajectory, without filling a disk). `None` in real runs.
+    pub fail_after_bytes: Option<u64>,
 }
 
 impl Default for RecorderConfig {
@@ -61,6 +64,7 @@ impl Default for RecorderConfig {
         Self {
             queue_capacity: 4096,
             gate: None,
+            fail_after_bytes: None,
         }
     }
 }
@@ -121,6 +125,7 @@ impl Recorder {
             current: None,
             failed: None,
             gate: cfg.gate,
+            fail_after_bytes: cfg.fail_after_bytes,
             stats: stats.clone(),
         };
         let task = tokio::task::spawn_blocking(move || writer.run(rx));
@@ -224,6 +229,7 @@ struct WriterLoop {
     /// The open trajectory failed: id and reason.
     failed: Option<(String, String)>,
     gate: Option<WriterGate>,
+    fail_after_bytes: Option<u64>,
     stats: Arc<RecorderStats>,
 }
 
@@ -285,7 +291,7 @@ impl WriterLoop {
         e.reason = None;
         e.file = None;
         let _ = self.save();
-        match TrajectoryWriter::create(&self.dir, &id) {
+        match TrajectoryWriter::create_with(&self.dir, &id, self.fail_after_bytes) {
             Ok(w) => self.current = Some(w),
             Err(err) => {
                 let reason = err.to_string();

@@ -3,7 +3,13 @@
 //!
 //! [`read_file`] reads a file completely (every record parsed, every message decoded, the
 //! summary's counts cross-checked) into [`FileContents`]; [`messages`] yields the decoded
-//! messages one by one, frames with their PNG bytes, for readers that keep the images.
+//! messages one by one, frames with their image bytes (PNG or JPEG, as stored), for readers
+//! that keep the images.
+//!
+//! Both recording formats read: each message is decoded by its channel's message encoding,
+//! `protobuf` (today's files, [`super::channels`]) or `json` (the first format,
+//! [`super::legacy`]; unchunked files of JSON messages). Chunked files are read chunk by chunk
+//! (zstd decompressed, CRCs checked).
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -11,8 +17,12 @@ use std::path::Path;
 
 use rig_core::wrench::Wrench;
 
-use super::channels::{self, PairedMsg, TOPIC_IMAGE, TOPIC_PAIRED};
+use super::channels::{
+    ImageFormat, TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_TRUTH, TOPIC_WRENCH,
+};
+use super::legacy;
 use super::manifest::Counts;
+use super::proto::fields;
 
 /// What a complete trajectory file holds.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
@@ -37,6 +47,10 @@ pub struct FileContents {
     pub truth: Vec<TruthRead>,
     /// The MCAP summary's message count per topic (cross-check of the linear read).
     pub summary_counts: BTreeMap<String, u64>,
+    /// Message encoding per topic (`protobuf`, or `json` in the first format).
+    pub encodings: BTreeMap<String, String>,
+    /// Chunks in the summary's chunk index (0: an unchunked file of the first format).
+    pub chunks: usize,
 }
 
 /// One `/sync/paired_wrench` message as read back: the frame it belongs to and its wrench.
@@ -83,7 +97,10 @@ pub fn read_bytes(bytes: &[u8]) -> Result<FileContents, String> {
             .map(|s| s.name.clone())
             .unwrap_or_default();
         out.channels.insert(ch.topic.clone(), schema);
+        out.encodings
+            .insert(ch.topic.clone(), ch.message_encoding.clone());
     }
+    out.chunks = summary.chunk_indexes.len();
     for msg in messages(bytes)? {
         match msg? {
             Message::Frame { seq, .. } => {
@@ -128,17 +145,41 @@ pub fn read_bytes(bytes: &[u8]) -> Result<FileContents, String> {
     Ok(out)
 }
 
+/// A `/sync/paired_wrench` message, decoded (either format).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Paired {
+    /// The frame's capture time, host ns (the message's timestamp).
+    pub t_ns: u64,
+    pub frame_seq: i64,
+    /// Force, N (`None` when the pairing was refused).
+    pub force_n: Option<[f64; 3]>,
+    /// Torque, N·mm (`None` when the pairing was refused).
+    pub torque_nmm: Option<[f64; 3]>,
+    pub sync_error_ns: Option<f64>,
+    /// `ok`, `held`, `out_of_range`, `gap` or `no_data`.
+    pub status: String,
+    /// `down`, `shear`, `reverse` or `up`.
+    pub stage: Option<String>,
+    /// UR pose `[x, y, z (m), rx, ry, rz (rad)]` at the frame's time.
+    pub tcp_pose: Option<[f64; 6]>,
+}
+
 /// One message of a trajectory file, decoded.
 #[derive(Debug, Clone)]
 pub enum Message {
-    /// A camera frame: its sequence number and its PNG bytes.
-    Frame { seq: i64, png: Vec<u8> },
+    /// A camera frame: its sequence number, time (host ns) and image as stored.
+    Frame {
+        seq: i64,
+        t_ns: u64,
+        format: ImageFormat,
+        data: Vec<u8>,
+    },
     /// A wrench sample: its device counter (when the device has one) and its log time, ns.
     Wrench { seq: Option<i64>, log_time_ns: u64 },
     /// A TCP pose.
     Pose,
     /// A frame's paired wrench.
-    Paired(PairedMsg),
+    Paired(Paired),
     /// A stage label.
     Stage,
     /// Simulated rig only: the true wrench at a frame's true capture time.
@@ -163,41 +204,173 @@ pub fn messages_on<'a>(
         mcap::read::MessageStream::new(bytes).map_err(|e| format!("unreadable MCAP: {e}"))?;
     Ok(stream.filter_map(move |msg| match msg {
         Err(e) => Some(Err(format!("corrupt MCAP record: {e}"))),
-        Ok(msg) => {
-            keep(&msg.channel.topic).then(|| decode(&msg.channel.topic, &msg.data, msg.log_time))
-        }
+        Ok(msg) => keep(&msg.channel.topic).then(|| {
+            let topic = &msg.channel.topic;
+            match msg.channel.message_encoding.as_str() {
+                "protobuf" => decode_proto(topic, &msg.data, msg.sequence, msg.log_time),
+                "json" => decode_json(topic, &msg.data, msg.log_time),
+                other => Err(format!("{topic}: unknown message encoding {other:?}")),
+            }
+        }),
     }))
 }
 
-fn decode(topic: &str, data: &[u8], log_time_ns: u64) -> Result<Message, String> {
+fn decode_proto(
+    topic: &str,
+    data: &[u8],
+    sequence: u32,
+    log_time_ns: u64,
+) -> Result<Message, String> {
+    let bad = |e: String| format!("bad {topic} message: {e}");
+    let mut t_ns = log_time_ns;
+    Ok(match topic {
+        TOPIC_IMAGE => {
+            let (mut bytes, mut format) = (Vec::new(), String::new());
+            for f in fields(data) {
+                match f.map_err(bad)? {
+                    (1, v) => t_ns = v.timestamp_ns().map_err(bad)?,
+                    (2, v) => bytes = v.as_bytes().map_err(bad)?.to_vec(),
+                    (3, v) => format = v.as_str().map_err(bad)?.to_owned(),
+                    _ => {}
+                }
+            }
+            let format = ImageFormat::parse(&format).ok_or_else(|| {
+                format!("frame {sequence}: image format {format:?} is neither png nor jpeg")
+            })?;
+            Message::Frame {
+                seq: i64::from(sequence),
+                t_ns,
+                format,
+                data: bytes,
+            }
+        }
+        TOPIC_WRENCH => {
+            let mut seq = None;
+            for f in fields(data) {
+                match f.map_err(bad)? {
+                    (1, v) => {
+                        v.timestamp_ns().map_err(bad)?;
+                    }
+                    (2 | 3, v) => {
+                        v.vector3().map_err(bad)?;
+                    }
+                    (4, v) => seq = Some(v.as_i64().map_err(bad)?),
+                    _ => {}
+                }
+            }
+            Message::Wrench { seq, log_time_ns }
+        }
+        TOPIC_POSE => {
+            for f in fields(data) {
+                if let (1, v) = f.map_err(bad)? {
+                    v.timestamp_ns().map_err(bad)?;
+                }
+            }
+            Message::Pose
+        }
+        TOPIC_PAIRED => {
+            let mut p = Paired {
+                t_ns,
+                frame_seq: 0,
+                force_n: None,
+                torque_nmm: None,
+                sync_error_ns: None,
+                status: String::new(),
+                stage: None,
+                tcp_pose: None,
+            };
+            let mut pose = Vec::new();
+            for f in fields(data) {
+                match f.map_err(bad)? {
+                    (1, v) => p.t_ns = v.timestamp_ns().map_err(bad)?,
+                    (2, v) => p.frame_seq = v.as_i64().map_err(bad)?,
+                    (3, v) => p.force_n = Some(v.vector3().map_err(bad)?),
+                    (4, v) => p.torque_nmm = Some(v.vector3().map_err(bad)?),
+                    (5, v) => p.sync_error_ns = Some(v.as_f64().map_err(bad)?),
+                    (6, v) => p.status = v.as_str().map_err(bad)?.to_owned(),
+                    (7, v) => p.stage = Some(v.as_str().map_err(bad)?.to_owned()),
+                    (8, v) => v.doubles(&mut pose).map_err(bad)?,
+                    _ => {}
+                }
+            }
+            p.tcp_pose = match pose.len() {
+                0 => None,
+                6 => Some([pose[0], pose[1], pose[2], pose[3], pose[4], pose[5]]),
+                n => return Err(bad(format!("tcp_pose has {n} values, not 6"))),
+            };
+            Message::Paired(p)
+        }
+        TOPIC_STAGE => {
+            for f in fields(data) {
+                f.map_err(bad)?;
+            }
+            Message::Stage
+        }
+        TOPIC_TRUTH => {
+            let mut t = TruthRead {
+                frame_seq: 0,
+                wrench: Wrench::default(),
+            };
+            for f in fields(data) {
+                match f.map_err(bad)? {
+                    (2, v) => t.frame_seq = v.as_i64().map_err(bad)?,
+                    (3, v) => t.wrench.force_n = v.vector3().map_err(bad)?,
+                    (4, v) => t.wrench.torque_nmm = v.vector3().map_err(bad)?,
+                    _ => {}
+                }
+            }
+            Message::Truth(t)
+        }
+        other => return Err(format!("unexpected channel {other}")),
+    })
+}
+
+fn decode_json(topic: &str, data: &[u8], log_time_ns: u64) -> Result<Message, String> {
     let bad = |e: serde_json::Error| format!("bad {topic} message: {e}");
     Ok(match topic {
         TOPIC_IMAGE => {
-            let m: channels::ImageMsg = serde_json::from_slice(data).map_err(bad)?;
+            let m: legacy::ImageMsg = serde_json::from_slice(data).map_err(bad)?;
             let png = (m.format == "png")
-                .then(|| channels::base64_decode(&m.data))
+                .then(|| legacy::base64_decode(&m.data))
                 .flatten()
                 .ok_or_else(|| format!("frame {} is not base64 PNG", m.seq))?;
-            Message::Frame { seq: m.seq, png }
+            Message::Frame {
+                seq: m.seq,
+                t_ns: m.timestamp.to_ns(),
+                format: ImageFormat::Png,
+                data: png,
+            }
         }
-        channels::TOPIC_WRENCH => {
-            let m: channels::WrenchMsg = serde_json::from_slice(data).map_err(bad)?;
+        TOPIC_WRENCH => {
+            let m: legacy::WrenchMsg = serde_json::from_slice(data).map_err(bad)?;
             Message::Wrench {
                 seq: m.seq,
                 log_time_ns,
             }
         }
-        channels::TOPIC_POSE => {
-            let _: channels::PoseMsg = serde_json::from_slice(data).map_err(bad)?;
+        TOPIC_POSE => {
+            let _: legacy::PoseMsg = serde_json::from_slice(data).map_err(bad)?;
             Message::Pose
         }
-        TOPIC_PAIRED => Message::Paired(serde_json::from_slice(data).map_err(bad)?),
-        channels::TOPIC_STAGE => {
-            let _: channels::StageMsg = serde_json::from_slice(data).map_err(bad)?;
+        TOPIC_PAIRED => {
+            let m: legacy::PairedMsg = serde_json::from_slice(data).map_err(bad)?;
+            Message::Paired(Paired {
+                t_ns: m.timestamp.to_ns(),
+                frame_seq: m.frame_seq,
+                force_n: m.force_n,
+                torque_nmm: m.torque_nmm,
+                sync_error_ns: m.sync_error_ns,
+                status: m.status,
+                stage: m.stage,
+                tcp_pose: m.tcp_pose,
+            })
+        }
+        TOPIC_STAGE => {
+            let _: legacy::StageMsg = serde_json::from_slice(data).map_err(bad)?;
             Message::Stage
         }
-        channels::TOPIC_TRUTH => {
-            let m: channels::TruthMsg = serde_json::from_slice(data).map_err(bad)?;
+        TOPIC_TRUTH => {
+            let m: legacy::TruthMsg = serde_json::from_slice(data).map_err(bad)?;
             Message::Truth(TruthRead {
                 frame_seq: m.frame_seq,
                 wrench: Wrench {

@@ -127,7 +127,8 @@ pub async fn record_one(
                 rec.send(Record::Frame {
                     seq: seq as i64,
                     t_ns,
-                    png: png_frame(spec.width, spec.height, seq),
+                    format: super::channels::ImageFormat::Png,
+                    data: png_frame(spec.width, spec.height, seq),
                 })
                 .await?;
                 if spec.truth {

@@ -353,7 +353,8 @@ impl Collector {
                     self.write(Record::Frame {
                         seq,
                         t_ns: f.host_rx_ns,
-                        png: f.png,
+                        format: f.format,
+                        data: f.data,
                     })
                     .await;
                     if let Some((t_capture, wrench)) = truth {

@@ -26,8 +26,9 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use super::safety::{self, SafetyIo, SafetyStop};
-use crate::camera::{CameraError, Frame, FrameSource};
+use crate::camera::{CameraError, Frame, FrameSource, PixelFormat};
 use crate::force::{FtStream, TareHandle, TareReport, WrenchSample};
+use crate::record::ImageFormat;
 
 /// Frames queued toward the PNG encoder before they are lost for the recording (about 2 s at
 /// 30 fps, for an encoder held up by back-pressure).
@@ -114,8 +115,9 @@ pub struct EncodedFrame {
     pub host_rx_ns: u64,
     /// Frames the sequence numbers say were lost just before this one.
     pub dropped_before: u64,
-    /// Lossless PNG.
-    pub png: Vec<u8>,
+    /// The image as it is recorded ([`stored_image`]).
+    pub format: ImageFormat,
+    pub data: Vec<u8>,
     /// Simulated rig only: the true capture time and the simulator's wrench then.
     pub truth: Option<(u64, Wrench)>,
 }
@@ -463,6 +465,21 @@ async fn camera_task(
     }
 }
 
+/// What a frame is recorded as: camera bytes as received where they are already an image
+/// file — an MJPEG camera's JPEG, untouched (it is decoded once, only to refuse a corrupt or
+/// wrongly sized frame as before) — and lossless PNG for raw pixels (RGB, YUYV) and the
+/// simulated camera.
+pub fn stored_image(frame: &Frame) -> Result<(ImageFormat, Vec<u8>), String> {
+    let img = frame
+        .to_rgb()
+        .map_err(|e| format!("cannot convert to RGB: {e}"))?;
+    if frame.format.pixel == PixelFormat::Mjpeg {
+        return Ok((ImageFormat::Jpeg, frame.data.clone()));
+    }
+    let png = crate::record::png::encode(&img).map_err(|e| format!("PNG encoding failed: {e}"))?;
+    Ok((ImageFormat::Png, png))
+}
+
 fn encoder_thread(
     mut rx: mpsc::Receiver<Frame>,
     out: mpsc::Sender<Event>,
@@ -473,15 +490,10 @@ fn encoder_thread(
         if stop.load(Ordering::Relaxed) {
             return;
         }
-        let png = match frame.to_rgb().map(|img| crate::record::png::encode(&img)) {
-            Ok(Ok(png)) => png,
-            Ok(Err(e)) => {
-                tracing::warn!("frame {}: PNG encoding failed: {e}", frame.sequence);
-                counters.frames_unencodable.fetch_add(1, Ordering::Relaxed);
-                continue;
-            }
+        let (format, data) = match stored_image(&frame) {
+            Ok(img) => img,
             Err(e) => {
-                tracing::warn!("frame {}: cannot convert to RGB: {e}", frame.sequence);
+                tracing::warn!("frame {}: {e}", frame.sequence);
                 counters.frames_unencodable.fetch_add(1, Ordering::Relaxed);
                 continue;
             }
@@ -492,7 +504,8 @@ fn encoder_thread(
             stamp_ns,
             host_rx_ns: frame.received_t_ns,
             dropped_before: frame.dropped_before,
-            png,
+            format,
+            data,
             truth: frame.truth.map(|t| (t.capture_t_ns, t.wrench)),
         }));
         let sent = match out.try_send(ev) {

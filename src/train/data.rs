@@ -447,13 +447,15 @@ fn load_trajectory(
         });
     }
     let bytes = fs::read(path)?;
-    let mut images: Vec<(i64, Vec<u8>)> = Vec::new();
+    let mut images: Vec<(i64, (crate::record::ImageFormat, Vec<u8>))> = Vec::new();
     let mut paired: BTreeMap<i64, [f32; 3]> = BTreeMap::new();
     // Only the frames and their paired forces are decoded.
     let wanted = |topic: &str| topic == TOPIC_IMAGE || topic == TOPIC_PAIRED;
     for msg in reader::messages_on(&bytes, wanted).map_err(anyhow::Error::msg)? {
         match msg.map_err(anyhow::Error::msg)? {
-            Message::Frame { seq, png } => images.push((seq, png)),
+            Message::Frame {
+                seq, format, data, ..
+            } => images.push((seq, (format, data))),
             Message::Paired(m) => {
                 if let Some(f) = m.force_n {
                     paired.insert(m.frame_seq, [f[0] as f32, f[1] as f32, f[2] as f32]);
@@ -468,9 +470,9 @@ fn load_trajectory(
     images.sort_by_key(|(seq, _)| *seq);
     let mut pixels = Vec::with_capacity(images.len() * spec.frame_bytes());
     let mut forces = Vec::with_capacity(images.len());
-    for (seq, png) in &images {
-        let img =
-            crate::record::png::decode(png).with_context(|| format!("frame {seq} is not a PNG"))?;
+    for (seq, (format, data)) in &images {
+        let img = crate::record::png::decode_as(*format, data)
+            .with_context(|| format!("frame {seq} is not a readable {}", format.as_str()))?;
         pixels.extend_from_slice(&prepare_image(&img, spec, params));
         forces.push(paired[seq]);
     }

@@ -114,12 +114,13 @@ fn monotonic_stamps_map_onto_the_rig_clock_by_the_lowest_gap() {
     assert_eq!(map.to_host(0), None);
 }
 
-/// A scripted device: modes, the format it really sets, and the buffers it returns.
-struct FakeDevice {
-    modes: Vec<OfferedMode>,
-    force_pixel: Option<PixelFormat>,
-    frames: VecDeque<std::io::Result<Option<RawFrame>>>,
-    log: Arc<Mutex<Vec<String>>>,
+/// A scripted device: modes, the format it really sets, and the buffers it returns (also used
+/// by `recording_format`'s MJPEG test).
+pub(crate) struct FakeDevice {
+    pub(crate) modes: Vec<OfferedMode>,
+    pub(crate) force_pixel: Option<PixelFormat>,
+    pub(crate) frames: VecDeque<std::io::Result<Option<RawFrame>>>,
+    pub(crate) log: Arc<Mutex<Vec<String>>>,
 }
 
 impl DeviceLayer for FakeDevice {

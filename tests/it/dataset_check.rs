@@ -201,7 +201,8 @@ fn write_traj(dir: &Path, id: &str, frames: &[F]) -> Counts {
         w.write(&Record::Frame {
             seq: f.seq,
             t_ns,
-            png: png_frame(4, 3, f.seq as u64),
+            format: rig::record::ImageFormat::Png,
+            data: png_frame(4, 3, f.seq as u64),
         })
         .unwrap();
         if let Some(tw) = f.truth {

@@ -64,7 +64,8 @@ fn channel(adv: &serde_json::Value, topic: &str) -> u64 {
         .unwrap()
 }
 
-/// (subscription id, log time, JSON body) of a messageData frame.
+/// (subscription id, log time, body) of a messageData frame; the body (a `rig.Wrench` in
+/// protobuf) as JSON `{force_n, torque_nmm}`.
 fn message_data(m: Message) -> (u32, u64, serde_json::Value) {
     let Message::Binary(b) = m else {
         panic!("expected binary, got {m:?}")
@@ -72,7 +73,15 @@ fn message_data(m: Message) -> (u32, u64, serde_json::Value) {
     assert_eq!(b[0], 0x01, "opcode messageData");
     let sub = u32::from_le_bytes(b[1..5].try_into().unwrap());
     let t = u64::from_le_bytes(b[5..13].try_into().unwrap());
-    (sub, t, serde_json::from_slice(&b[13..]).unwrap())
+    let mut body = serde_json::json!({});
+    for f in rig::record::proto::fields(&b[13..]) {
+        match f.unwrap() {
+            (2, v) => body["force_n"] = serde_json::json!(v.vector3().unwrap()),
+            (3, v) => body["torque_nmm"] = serde_json::json!(v.vector3().unwrap()),
+            _ => {}
+        }
+    }
+    (sub, t, body)
 }
 
 fn wrench(t_ns: u64, fz: f64) -> Record {
@@ -118,11 +127,13 @@ async fn subscribed_channels_get_message_data_and_nothing_else() {
     assert!(names.contains(&("/camera/image", "foxglove.CompressedImage")));
     assert!(names.contains(&("/sim/true_wrench", "rig.TrueWrench")));
     for c in adv["channels"].as_array().unwrap() {
-        assert_eq!(c["encoding"], "json");
-        assert_eq!(c["schemaEncoding"], "jsonschema");
-        let schema: serde_json::Value =
-            serde_json::from_str(c["schema"].as_str().unwrap()).unwrap();
-        assert_eq!(schema["type"], "object");
+        // The recording's encodings: protobuf, each schema a base64 FileDescriptorSet.
+        assert_eq!(c["encoding"], "protobuf");
+        assert_eq!(c["schemaEncoding"], "protobuf");
+        let schema = rig::record::legacy::base64_decode(c["schema"].as_str().unwrap()).unwrap();
+        let name = c["schemaName"].as_str().unwrap();
+        assert_eq!(schema, rig::record::channels::schema_data(name), "{name}");
+        assert!(!schema.is_empty());
     }
 
     let ft = channel(&adv, "/ft/wrench");
@@ -229,18 +240,20 @@ async fn a_client_that_never_reads_loses_messages_not_the_run() {
         live.publish(&Record::Frame {
             seq: 0,
             t_ns: 1,
-            png: png.clone(),
+            format: rig::record::ImageFormat::Png,
+            data: png.clone(),
         });
         live.stats().sent > 0
     })
     .await;
-    // More frames (600 × 67 kB of base64 JSON) than the queue (256) and socket buffers hold: `publish` never waits, the
+    // More frames (600 × 50 kB) than the queue (256) and socket buffers hold: `publish` never waits, the
     // stalled client's queue overflows and the overflow is counted.
     for k in 0..600 {
         live.publish(&Record::Frame {
             seq: k,
             t_ns: k as u64,
-            png: png.clone(),
+            format: rig::record::ImageFormat::Png,
+            data: png.clone(),
         });
     }
     assert!(live.stats().dropped > 0, "{:?}", live.stats());

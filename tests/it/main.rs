@@ -24,6 +24,7 @@ mod live_view;
 mod mcap_python;
 mod plan_cli;
 mod record_pipeline;
+mod recording_format;
 mod robot_faults;
 mod robot_motion;
 mod rtde_codec_props;

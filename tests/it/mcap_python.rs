@@ -1,5 +1,7 @@
-//! A reader no one here wrote: the PyPI `mcap` package reads recorded trajectory files and finds
-//! every channel with the expected message count and schema name, including the simulator's
+//! A reader no one here wrote: the PyPI `mcap` package (with `mcap-protobuf-support`) reads
+//! recorded trajectory files through their summary and index (chunk indexes, statistics, CRCs
+//! validated), decodes every message with the file's own protobuf descriptors, and finds every
+//! channel with the expected message count and schema name, including the simulator's
 //! true wrench (`/sim/true_wrench`, `rig.TrueWrench`, one message per frame) in a trajectory
 //! recorded as the simulated rig does, and no such messages in one recorded as a lab rig does.
 //! Runs `$RIG_PYTHON` (default `python3`); `bash scripts/test` creates `.venv` with the package
@@ -51,13 +53,13 @@ fn python_mcap_reads_every_channel_with_the_expected_counts() {
         // declared but empty.
         let counts: BTreeMap<&str, u64> = CHANNELS
             .iter()
-            .map(|(topic, _, _)| (*topic, c.counts.of_topic(topic)))
+            .map(|(topic, _)| (*topic, c.counts.of_topic(topic)))
             .filter(|(_, n)| *n > 0)
             .collect();
         let schemas: BTreeMap<&str, &str> = CHANNELS
             .iter()
-            .filter(|(topic, _, _)| counts.contains_key(topic))
-            .map(|(topic, schema, _)| (*topic, *schema))
+            .filter(|(topic, _)| counts.contains_key(topic))
+            .map(|(topic, schema)| (*topic, *schema))
             .collect();
         // The real numbers, so a reader that sees nothing cannot pass.
         assert_eq!(counts["/camera/image"], 12);

@@ -86,7 +86,8 @@ async fn aborted_trajectory_leaves_no_file_and_is_marked_failed() {
     rec.send(Record::Frame {
         seq: 0,
         t_ns: 1,
-        png: png_frame(8, 8, 0),
+        format: rig::record::ImageFormat::Png,
+        data: png_frame(8, 8, 0),
     })
     .await
     .unwrap();
@@ -151,6 +152,7 @@ async fn slow_disk_is_back_pressure_and_nothing_is_dropped() {
             RecorderConfig {
                 queue_capacity: 4,
                 gate: Some(gate.clone()),
+                ..RecorderConfig::default()
             },
         )
         .unwrap(),

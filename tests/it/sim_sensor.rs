@@ -95,8 +95,10 @@ fn read_trajectories(dir: &Path) -> Vec<Trajectory> {
             };
             for m in messages(&bytes).unwrap() {
                 match m.unwrap() {
-                    Message::Frame { seq, png } => {
-                        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+                    Message::Frame {
+                        seq, format, data, ..
+                    } => {
+                        let img = rig::record::png::decode_as(format, &data).unwrap();
                         t.frames.insert(seq, img);
                     }
                     Message::Paired(p) => {

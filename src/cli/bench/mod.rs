@@ -1,5 +1,6 @@
 //! `rig bench …`: what accuracy costs in time. Each benchmark prints a table and writes a plot.
 
+pub mod record;
 pub mod render;
 pub mod run;
 pub mod sim;
@@ -23,6 +24,8 @@ pub enum BenchCommand {
     Render(render::RenderBenchArgs),
     /// Synchronisation: interpolation and drift estimation against the true signal.
     Sync(sync::SyncBenchArgs),
+    /// The recorder: write throughput on one core against a run's data rate.
+    Record(record::RecordBenchArgs),
     /// The whole `rig run` on the simulated rig: wall-clock time, effective speed, accuracy.
     Run(run::RunBenchArgs),
     /// The force model: training throughput and inference latency per encoder depth, and
@@ -35,6 +38,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Sim(a) => sim::run(a),
         BenchCommand::Render(a) => render::run(a),
         BenchCommand::Sync(a) => sync::run(a),
+        BenchCommand::Record(a) => record::run(a),
         BenchCommand::Run(a) => run::run(a),
         BenchCommand::Train(a) => train::run(a),
     }
