@@ -151,7 +151,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<Summary> {
     }
     let info = predictor.info();
     eprintln!(
-        "model {} ({}, {}, {}×{} {}), window T = {} at stride {}{}",
+        "model {} ({}, ResNet-{}, {}×{} {}), window T = {} at stride {}{}",
         args.model.display(),
         info.method,
         info.shape.depth,

@@ -67,8 +67,9 @@ use crate::train::modality::MarkerParams;
 /// Frames whose estimates make the no-contact reference when taring (`--tare`).
 pub const DEFAULT_TARE_FRAMES: usize = 8;
 
-/// How a [`Predictor`] reads frames.
-#[derive(Debug, Clone, PartialEq)]
+/// How a [`Predictor`] reads frames (default: the model's stride, no tare, the default marker
+/// sizes).
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct PredictorOptions {
     /// Frames between the LSTM window's frames; `None`: from the model
     /// ([`default_stride`]).
@@ -77,16 +78,6 @@ pub struct PredictorOptions {
     pub tare_frames: usize,
     /// Marker sizes of the camera's images, for the `rgb` and `marker` modalities.
     pub marker: MarkerParams,
-}
-
-impl Default for PredictorOptions {
-    fn default() -> Self {
-        Self {
-            stride: None,
-            tare_frames: 0,
-            marker: MarkerParams::default(),
-        }
-    }
 }
 
 /// One force estimate.
@@ -259,8 +250,8 @@ impl Predictor {
         let offset = match self.offset {
             Some(o) => o,
             None => {
-                for a in 0..3 {
-                    self.tare_sum[a] += raw[a];
+                for (sum, r) in self.tare_sum.iter_mut().zip(raw) {
+                    *sum += r;
                 }
                 self.tare_seen += 1;
                 if self.tare_seen >= self.tare_frames {

@@ -114,7 +114,6 @@ impl Feed {
     /// Hands a frame to the predictor. Returns at once (unless lossless): a frame still
     /// waiting in the slot is replaced and counted as skipped.
     pub fn offer(&self, mut input: Input) {
-        input.handed_at = Instant::now();
         self.delivered.fetch_add(1, Ordering::Relaxed);
         let mut slot = self.lock();
         if self.lossless {
@@ -122,6 +121,9 @@ impl Feed {
                 slot = self.cv.wait(slot).unwrap_or_else(|p| p.into_inner());
             }
         }
+        // Lossless: the frame is handed over when the slot takes it (the reader's wait for
+        // the predictor is not the frame's latency).
+        input.handed_at = Instant::now();
         if slot.closed {
             return;
         }

@@ -187,8 +187,8 @@ fn a_replay_gives_eval_s_forces_frame_for_frame() {
         let i = index[*traj];
         index[*traj] += 1;
         let want = by_frame[&(*traj, i)];
-        for a in 0..3 {
-            worst = worst.max((est.force_n[a] - want[a] as f64).abs());
+        for (got, want) in est.force_n.iter().zip(want) {
+            worst = worst.max((got - want as f64).abs());
         }
     }
     assert!(worst < 1e-4, "replay differs from eval by up to {worst} N");
