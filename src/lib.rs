@@ -24,6 +24,10 @@
 //!     view).
 //!   - **after the recording**: [`dataset`] (`rig dataset check`), [`train`] (CycleGAN
 //!     translation, the force model, evaluation, the demo), [`chart`] (the plots' house style).
+//!   - **the product in use**: [`predict`] (`rig predict`): a trained force model on the
+//!     target sensor's camera, frame by frame ([`predict::Predictor`], the library entry point
+//!     a robot program embeds), replaying a recording through the same path, or reading the
+//!     simulated sensor while the simulated robot runs a short plan.
 //!   - the **simulated rig**, [`simrig`]: starts `hardware-mocks` in-process and hands the rest
 //!     lab-shaped things (robot endpoints, an F/T stream read by the lab front end, a frame
 //!     source). The simulator's ground truth travels with its frames
@@ -50,6 +54,16 @@
 //! device's sample counter onto the rig clock, so each frame's wrench is interpolated between
 //! the samples around its capture time.
 //!
+//! **A frame, from the camera to a force estimate** (`rig predict`). A source thread
+//! ([`predict::source`]: the V4L2 reader, the simulated camera's frames as a short `rig run`
+//! records them, or a replayed recording) hands each frame to a one-frame mailbox
+//! ([`predict::session::Feed`]) and goes back to its camera; the predictor's thread takes the
+//! newest frame, decodes it, puts it into the model's modality and size exactly as training
+//! did ([`train::data::prepare_image`]), encodes it once, runs the LSTM over the last T frames'
+//! cached embeddings at `rig eval`'s stride ([`predict::Predictor`]), subtracts the tare and
+//! writes the estimate to stdout, an MCAP file and the live view's `/predict/wrench`
+//! ([`predict::output`]).
+//!
 //! # Time
 //!
 //! There is one clock, `rig_core::clock::Clock` (the system clock, or a simulated one that may
@@ -65,6 +79,7 @@ pub mod durable;
 pub mod force;
 pub mod live;
 pub mod plan;
+pub mod predict;
 pub mod record;
 pub mod robot;
 pub mod run;

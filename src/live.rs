@@ -123,8 +123,21 @@ struct Client {
     subs: HashMap<u32, u32>,
 }
 
+/// A channel beyond the recording's (`rig predict`'s `/predict/wrench`): JSON messages with a
+/// JSON schema, advertised after [`CHANNELS`] (ids `CHANNELS.len() + 1`, …) and published with
+/// [`LiveView::publish_extra`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExtraChannel {
+    pub topic: String,
+    pub schema_name: String,
+    /// The JSON schema's text.
+    pub schema: String,
+}
+
 #[derive(Default)]
 struct Shared {
+    /// Channels advertised after the recording's.
+    extra: Vec<ExtraChannel>,
     clients: Mutex<HashMap<u64, Client>>,
     next_client: AtomicU64,
     sent: AtomicU64,
@@ -154,20 +167,50 @@ fn channel_id(topic: &str) -> Option<u32> {
         .map(|i| i as u32 + 1)
 }
 
-fn advertise() -> String {
-    let channels: Vec<serde_json::Value> = CHANNELS
+/// Channel id of an extra channel's topic (after the recording's).
+fn extra_channel_id(extra: &[ExtraChannel], topic: &str) -> Option<u32> {
+    extra
         .iter()
+        .position(|c| c.topic == topic)
+        .map(|i| (CHANNELS.len() + i) as u32 + 1)
+}
+
+/// The recording's channels (protobuf, their FileDescriptorSets base64-encoded), then the
+/// extra ones (JSON with a JSON schema).
+fn advertise(extra: &[ExtraChannel]) -> String {
+    let recorded = CHANNELS.iter().map(|(topic, schema_name)| {
+        (
+            *topic,
+            *schema_name,
+            ENCODING,
+            base64(&schema_data(schema_name)),
+            ENCODING,
+        )
+    });
+    let extras = extra.iter().map(|c| {
+        (
+            c.topic.as_str(),
+            c.schema_name.as_str(),
+            "json",
+            c.schema.clone(),
+            "jsonschema",
+        )
+    });
+    let channels: Vec<serde_json::Value> = recorded
+        .chain(extras)
         .enumerate()
-        .map(|(i, (topic, schema_name))| {
-            serde_json::json!({
-                "id": i as u32 + 1,
-                "topic": topic,
-                "encoding": ENCODING,
-                "schemaName": schema_name,
-                "schema": base64(&schema_data(schema_name)),
-                "schemaEncoding": ENCODING,
-            })
-        })
+        .map(
+            |(i, (topic, schema_name, encoding, schema, schema_encoding))| {
+                serde_json::json!({
+                    "id": i as u32 + 1,
+                    "topic": topic,
+                    "encoding": encoding,
+                    "schemaName": schema_name,
+                    "schema": schema,
+                    "schemaEncoding": schema_encoding,
+                })
+            },
+        )
         .collect();
     serde_json::json!({ "op": "advertise", "channels": channels }).to_string()
 }
@@ -202,6 +245,15 @@ impl LiveView {
 
     /// [`LiveView::start`] with other limits (every one at least 1).
     pub async fn start_with(bind: SocketAddr, limits: LiveLimits) -> std::io::Result<LiveView> {
+        Self::start_with_channels(bind, limits, Vec::new()).await
+    }
+
+    /// [`LiveView::start_with`], advertising `extra` channels after the recording's.
+    pub async fn start_with_channels(
+        bind: SocketAddr,
+        limits: LiveLimits,
+        extra: Vec<ExtraChannel>,
+    ) -> std::io::Result<LiveView> {
         let invalid = |msg: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, msg);
         if !bind.ip().is_loopback() {
             return Err(invalid(format!(
@@ -220,7 +272,10 @@ impl LiveView {
         }
         let listener = TcpListener::bind(bind).await?;
         let addr = listener.local_addr()?;
-        let shared = Arc::new(Shared::default());
+        let shared = Arc::new(Shared {
+            extra,
+            ..Shared::default()
+        });
         let s = shared.clone();
         let task = tokio::spawn(async move {
             loop {
@@ -252,6 +307,22 @@ impl LiveView {
         let Some(cid) = channel_id(rec.topic()) else {
             return;
         };
+        self.send(cid, || rec.encode());
+    }
+
+    /// Sends a JSON `body` logged at `t_ns` on an extra channel (see [`ExtraChannel`]) to every
+    /// client subscribed to it, as [`Self::publish`] does (never blocking). An unknown topic is
+    /// ignored.
+    pub fn publish_extra(&self, topic: &str, t_ns: u64, body: &[u8]) {
+        let Some(cid) = extra_channel_id(&self.shared.extra, topic) else {
+            return;
+        };
+        self.send(cid, || ("", t_ns, body.to_vec()));
+    }
+
+    /// Hands channel `cid`'s message (encoded by `encode` only when somebody subscribes) to
+    /// each subscription's queue without waiting.
+    fn send(&self, cid: u32, encode: impl FnOnce() -> (&'static str, u64, Vec<u8>)) {
         let targets: Vec<(u32, mpsc::Sender<Message>)> = {
             let clients = self.shared.clients();
             clients
@@ -267,7 +338,7 @@ impl LiveView {
         if targets.is_empty() {
             return;
         }
-        let (_, t_ns, body) = rec.encode();
+        let (_, t_ns, body) = encode();
         for (sub, tx) in targets {
             let mut frame = Vec::with_capacity(13 + body.len());
             frame.push(0x01);
@@ -356,7 +427,7 @@ fn handle_request(shared: &Shared, id: u64, text: &str, max_subs: usize) -> Opti
                 let (Ok(sub), Ok(ch)) = (u32::try_from(sub), u32::try_from(ch)) else {
                     continue;
                 };
-                if !(1..=CHANNELS.len() as u32).contains(&ch) {
+                if !(1..=(CHANNELS.len() + shared.extra.len()) as u32).contains(&ch) {
                     continue;
                 }
                 if client.subs.len() < max_subs || client.subs.contains_key(&sub) {
@@ -424,7 +495,9 @@ async fn serve(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>, limits:
     let (tx, rx) = mpsc::channel::<Message>(CLIENT_QUEUE);
     // The queue is new and empty: both fit.
     if tx.try_send(Message::Text(server_info().into())).is_err()
-        || tx.try_send(Message::Text(advertise().into())).is_err()
+        || tx
+            .try_send(Message::Text(advertise(&shared.extra).into()))
+            .is_err()
     {
         return;
     }

@@ -396,7 +396,7 @@ fn load_any(
 }
 
 /// Marker size in pixels of the recorded images, from the rig config in the manifest.
-fn marker_params(config: &serde_json::Value) -> MarkerParams {
+pub fn marker_params(config: &serde_json::Value) -> MarkerParams {
     let optics = &config["optics"];
     let dot = optics["markers"]["dot_diameter_mm"].as_f64();
     let mm_px = optics["mm_per_px"].as_f64();

@@ -16,6 +16,12 @@ use super::data::{ImageSpec, LabelledSet, Trajectory};
 use super::nn::{Depth, ForceNet, ForceShape, gamma_l1};
 
 pub const MODEL_INFO: &str = "model.json";
+/// The format of a model directory this rig reads and writes ([`ModelInfo::format`]). A model
+/// of another format is refused by [`read_info`] with a message saying what to do, instead of
+/// being misread. Fields added later with a default (such as
+/// [`ModelInfo::frames_per_trajectory`]) keep the format; a change that older readers would
+/// misread bumps it.
+pub const MODEL_FORMAT: &str = "rig-force-model-1";
 const WEIGHTS: &str = "model.safetensors";
 /// The same weights in burn's own format, which also keeps each parameter's id: the optimiser
 /// state is keyed by those ids, so resuming needs them.
@@ -145,6 +151,11 @@ pub struct ModelInfo {
     pub epochs_done: usize,
     pub trained_on: String,
     pub last_loss: f64,
+    /// The median length, in frames, of the training trajectories: `rig predict` derives its
+    /// default window stride from it (⌊n/T⌋, the stride `rig eval` reads a trajectory of n
+    /// frames at). Absent in models trained before it was recorded.
+    #[serde(default)]
+    pub frames_per_trajectory: Option<usize>,
 }
 
 /// A trained model, ready to predict (no autodiff).
@@ -302,7 +313,7 @@ pub fn train(
         Optimizer::Sgd => SgdConfig::new().init(),
     };
     let mut info = ModelInfo {
-        format: "rig-force-model-1".into(),
+        format: MODEL_FORMAT.into(),
         method: method.into(),
         spec,
         shape,
@@ -313,6 +324,7 @@ pub fn train(
         epochs_done: 0,
         trained_on: String::new(),
         last_loss: f64::NAN,
+        frames_per_trajectory: median(&lengths),
     };
     // A checkpoint a crash interrupted: an incomplete one is dropped, a complete one installed.
     checkpoint_set(out).recover()?;
@@ -481,11 +493,47 @@ fn write_checkpoint(
 /// The description of the model in `dir` (of the checkpoint a crash left half installed, if
 /// one did: the one whose files are read).
 pub fn read_info(dir: &Path) -> anyhow::Result<ModelInfo> {
+    if !dir.is_dir() {
+        bail!(
+            "no model at {}: give the directory `rig train force --out` wrote (it holds \
+             {MODEL_INFO} and {WEIGHTS})",
+            dir.display()
+        );
+    }
     let p = checkpoint_set(dir).path(MODEL_INFO);
-    let text =
-        fs::read(&p).with_context(|| format!("{} is not a model directory", dir.display()))?;
-    serde_json::from_slice(&text)
+    let text = fs::read(&p).with_context(|| {
+        format!(
+            "{} is not a model directory (no {MODEL_INFO}): give the directory `rig train \
+             force --out` wrote",
+            dir.display()
+        )
+    })?;
+    // The format first, so a model of another version is named as such rather than reported
+    // as a field this version does not know.
+    let raw: serde_json::Value = serde_json::from_slice(&text)
+        .with_context(|| format!("{} is not a model description (not JSON)", p.display()))?;
+    match raw.get("format").and_then(|f| f.as_str()) {
+        Some(MODEL_FORMAT) => {}
+        Some(other) => bail!(
+            "{} is a model of format {other:?}; this rig ({}) reads {MODEL_FORMAT:?}. Use the \
+             rig version that trained it, or retrain the model with this one (`rig train force`)",
+            dir.display(),
+            env!("CARGO_PKG_VERSION")
+        ),
+        None => bail!(
+            "{} has no format field: it is not a model description this rig wrote",
+            p.display()
+        ),
+    }
+    serde_json::from_value(raw)
         .with_context(|| format!("{} is not a model description", p.display()))
+}
+
+/// The median of `v` (the upper one of an even count); `None` when empty.
+fn median(v: &[usize]) -> Option<usize> {
+    let mut s = v.to_vec();
+    s.sort_unstable();
+    s.get(s.len() / 2).copied()
 }
 
 impl ForceModel {
@@ -505,6 +553,72 @@ impl ForceModel {
 
     pub fn spec(&self) -> ImageSpec {
         self.info.spec
+    }
+
+    /// A model of `cfg`'s shape for `spec` images with the initial weights of `cfg.seed`,
+    /// untrained: for benchmarks of inference time, where the weights' values do not matter.
+    pub fn untrained(cfg: &ForceConfig, spec: ImageSpec, frames_per_trajectory: usize) -> Self {
+        let dev = device();
+        let shape = shape_for(cfg, &spec);
+        let net = build_networks(&dev, Some(cfg.seed), || {
+            let net = ForceNet::new(&shape, &dev);
+            init_params(&net);
+            net
+        });
+        let info = ModelInfo {
+            format: MODEL_FORMAT.into(),
+            method: "untrained".into(),
+            spec,
+            shape,
+            range: cfg.range.unwrap_or_else(|| {
+                ForceRange::from_bounds([(-1.0, 1.0), (-1.0, 1.0), (-5.0, 0.0)])
+            }),
+            config: cfg.clone(),
+            epochs_done: 0,
+            trained_on: String::new(),
+            last_loss: f64::NAN,
+            frames_per_trajectory: Some(frames_per_trajectory),
+        };
+        Self { info, net, dev }
+    }
+
+    /// Embeddings of `frames` (each `spec`-sized RGB), one per frame: the encoder alone.
+    pub fn encode(&self, frames: &[&[u8]]) -> Vec<Vec<f32>> {
+        if frames.is_empty() {
+            return Vec::new();
+        }
+        let x = images_to_tensor(frames, &self.info.spec, &self.dev);
+        let e = self.net.encode(x);
+        let d = e.dims()[1];
+        let v: Vec<f32> = e
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .expect("f32 output");
+        v.chunks_exact(d).map(|c| c.to_vec()).collect()
+    }
+
+    /// The force (N) at the last of a sequence of embeddings in time order (the LSTM runs
+    /// over all of them from a zero state; without an LSTM only the last one counts).
+    pub fn force_at_last(&self, embeddings: &[&[f32]]) -> [f32; 3] {
+        let window: &[&[f32]] = if self.info.shape.lstm {
+            embeddings
+        } else {
+            &embeddings[embeddings.len().saturating_sub(1)..]
+        };
+        let t = window.len();
+        let d = self.info.shape.embed;
+        let flat: Vec<f32> = window.iter().flat_map(|e| e.iter().copied()).collect();
+        let s = Tensor::<3>::from_data(TensorData::new(flat, [1, t, d]), &self.dev);
+        let y: Vec<f32> = self
+            .net
+            .head(s)
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .expect("f32 output");
+        let k = (t - 1) * 3;
+        self.info.range.denormalise([y[k], y[k + 1], y[k + 2]])
     }
 
     /// Forces (N) for each frame of each sequence: `[sequence][position]`.
@@ -642,7 +756,7 @@ mod tests {
         let shape = shape_for(&config, &spec);
         let (_, net) = initial_network(&shape, &device(), seed);
         let info = ModelInfo {
-            format: "rig-force-model-1".into(),
+            format: MODEL_FORMAT.into(),
             method: "test".into(),
             spec,
             shape,
@@ -651,6 +765,7 @@ mod tests {
             epochs_done: epoch,
             trained_on: String::new(),
             last_loss: 0.5,
+            frames_per_trajectory: Some(60),
         };
         (net, AdamConfig::new().init(), info)
     }

@@ -447,12 +447,26 @@ impl ForceNet {
         }
     }
 
-    /// `[B, T, 3, H, W]` → `[B, T, 3]` in 0..1.
+    /// `[B, T, 3, H, W]` → `[B, T, 3]` in 0..1: [`Self::encode`] every frame, then
+    /// [`Self::head`] over each sequence.
     pub fn forward(&self, x: Tensor<5>) -> Tensor<3> {
         let [b, t, c, h, w] = x.dims();
-        let e = self.encoder.forward(x.reshape([b * t, c, h, w]));
+        let e = self.encode(x.reshape([b * t, c, h, w]));
         let d = e.dims()[1];
-        let mut s = e.reshape([b, t, d]);
+        self.head(e.reshape([b, t, d]))
+    }
+
+    /// The encoder alone: `[N, 3, H, W]` → `[N, embed]`, each frame on its own (in inference
+    /// the batch norms use their running statistics, so a frame's embedding does not depend on
+    /// the others in the batch). `rig predict` computes it once per frame and caches it.
+    pub fn encode(&self, x: Tensor<4>) -> Tensor<2> {
+        self.encoder.forward(x)
+    }
+
+    /// Everything after the encoder: embeddings `[B, T, embed]` → forces `[B, T, 3]` in 0..1.
+    /// The LSTM starts from a zero state at the sequence's first frame and is causal: position
+    /// k depends on positions 0..=k only.
+    pub fn head(&self, mut s: Tensor<3>) -> Tensor<3> {
         if let Some(lstm) = &self.lstm {
             s = lstm.forward(s, None).0;
         }

@@ -23,6 +23,7 @@ mod ft_serial;
 mod live_view;
 mod mcap_python;
 mod plan_cli;
+mod predict;
 mod record_pipeline;
 mod recording_format;
 mod robot_faults;

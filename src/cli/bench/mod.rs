@@ -1,5 +1,6 @@
 //! `rig bench …`: what accuracy costs in time. Each benchmark prints a table and writes a plot.
 
+pub mod predict;
 pub mod record;
 pub mod render;
 pub mod run;
@@ -31,6 +32,8 @@ pub enum BenchCommand {
     /// The force model: training throughput and inference latency per encoder depth, and
     /// held-out MAE against training time for a few model sizes.
     Train(train::TrainBenchArgs),
+    /// `rig predict`: per-frame latency (decode, modality, model) on one core at 320×240.
+    Predict(predict::PredictBenchArgs),
 }
 
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
@@ -41,5 +44,6 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Record(a) => record::run(a),
         BenchCommand::Run(a) => run::run(a),
         BenchCommand::Train(a) => train::run(a),
+        BenchCommand::Predict(a) => predict::run(a),
     }
 }

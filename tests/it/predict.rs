@@ -1,0 +1,410 @@
+//! `rig predict`: the trained model on the simulated target sensor's camera, frame by frame.
+//!
+//! - A replay of a recorded target dataset gives, frame for frame, the forces `rig eval`
+//!   scores (the same windows), so its MAE is eval's.
+//! - Live on the simulated rig (camera at its configured rate, clock ×1), every frame is
+//!   estimated: none skipped; the estimates are scored against the simulator's truth.
+//! - The live view advertises `/predict/wrench` and a Foxglove client receives the estimates.
+//! - Bad input is refused with a message: no model, a model of another format version, frames
+//!   of another aspect ratio.
+//!
+//! All at the quick demo's scale: a target dataset of a few trajectories (160 × 120 at 10 fps),
+//! a tiny model (32 × 24 input, width 4, one epoch on synthetic frames: its accuracy does not
+//! matter here, only that predict computes what eval computes).
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use rig::predict::output::{Format, Output, TOPIC_PREDICTED, predicted_channel};
+use rig::predict::session::{self, Feed};
+use rig::predict::source::{Replay, SimRun, marker_of};
+use rig::predict::{Predictor, PredictorOptions};
+use rig::train::data::{self, ImageSpec, LabelledSet, Trajectory};
+use rig::train::eval;
+use rig::train::force::{self, ForceConfig, ForceModel};
+use rig::train::modality::Modality;
+use rig::train::nn::Depth;
+use rig_core::config::RigConfig;
+use rig_core::indenter::Indenter;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+
+use crate::common;
+
+const SPEC: ImageSpec = ImageSpec {
+    width: 32,
+    height: 24,
+    modality: Modality::RgbMarker,
+};
+
+/// The quick demo's target sensor: 160 × 120 at 10 fps, the centre contact point.
+fn target_config() -> RigConfig {
+    let plan = rig::train::demo::DemoPlan::new(true);
+    rig::train::demo::demo_config(RigConfig::sim_target(), &plan)
+}
+
+struct Fixture {
+    data: PathBuf,
+    model: PathBuf,
+}
+
+/// A recorded target dataset (3 trajectories) and a tiny model, made once for the module.
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("predict-fixture");
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let data = root.join("target");
+        {
+            let _rig = common::one_rig_at_a_time();
+            let opts = rig::run::RunOptions {
+                limit: Some(3),
+                ..rig::run::RunOptions::new(&data)
+            };
+            let rt = tokio::runtime::Runtime::new().unwrap();
+            let s = rt
+                .block_on(rig::run::run(
+                    &target_config(),
+                    &Indenter::load("sphere").unwrap(),
+                    &opts,
+                ))
+                .unwrap();
+            assert!(s.failure.is_none(), "{}", s.report());
+        }
+        let model = root.join("model");
+        force::train(
+            &synthetic_set(),
+            &tiny_config(),
+            "tiny",
+            &model,
+            false,
+            false,
+        )
+        .unwrap();
+        Fixture { data, model }
+    })
+}
+
+fn tiny_config() -> ForceConfig {
+    ForceConfig {
+        depth: Depth::R18,
+        width: 4,
+        embed: 16,
+        seq_len: 8,
+        per_trajectory: 2,
+        epochs: 1,
+        batch: 4,
+        ..ForceConfig::default()
+    }
+}
+
+/// Frames with a bright disc whose size follows the force, 40 frames per trajectory.
+fn synthetic_set() -> LabelledSet {
+    let (w, h) = (SPEC.width, SPEC.height);
+    let mut trajs = Vec::new();
+    let mut forces = Vec::new();
+    for k in 0..3 {
+        let f: Vec<[f32; 3]> = (0..40)
+            .map(|i| {
+                let s = (i as f32 / 39.0 * std::f32::consts::PI).sin();
+                [0.2 * s * (k as f32 - 1.0), 0.1 * s, -2.0 * s]
+            })
+            .collect();
+        let mut px = Vec::new();
+        for fi in &f {
+            let r2 = 4.0 + 20.0 * -fi[2];
+            for y in 0..h {
+                for x in 0..w {
+                    let d2 = (x as f32 - 16.0).powi(2) + (y as f32 - 12.0).powi(2);
+                    let v = if d2 < r2 { 220 } else { 90 };
+                    px.extend_from_slice(&[v, v / 2, 60]);
+                }
+            }
+        }
+        trajs.push(Trajectory {
+            id: format!("s{k}"),
+            indenter: "sphere".into(),
+            pixels: px,
+            frames: 40,
+        });
+        forces.push(f);
+    }
+    LabelledSet::from_parts(SPEC, trajs, forces).unwrap()
+}
+
+fn quiet() -> Output {
+    Output::new(Format::Quiet, Box::new(std::io::sink()))
+}
+
+#[test]
+fn a_replay_gives_eval_s_forces_frame_for_frame() {
+    let f = fixture();
+    // What `rig eval` computes: its windows, its per-frame predictions and truths.
+    let model = ForceModel::load(&f.model).unwrap();
+    let set = data::load_eval(&f.data, &model.spec(), false).unwrap();
+    let lengths: Vec<usize> = set.trajectories.iter().map(|t| t.frames).collect();
+    assert_eq!(lengths.len(), 3);
+    let windows = eval::eval_windows(&lengths, 8);
+    let seqs: Vec<_> = windows.iter().map(|(s, _)| s.clone()).collect();
+    let out = model.predict(&set.trajectories, &seqs, 16);
+    let mut by_frame = std::collections::BTreeMap::new();
+    for ((s, skip), pred) in windows.iter().zip(&out) {
+        for (k, &i) in s.frames.iter().enumerate().skip(*skip) {
+            by_frame.insert((s.traj, i), pred[k]);
+        }
+    }
+    let p = eval::predict(&model, &set);
+    let eval_scores = rig::train::metrics::score(&p.pred, &p.truth);
+
+    // The replay, as fast as possible (lossless), without a tare.
+    let predictor = Predictor::load(
+        &f.model,
+        PredictorOptions {
+            stride: Some(1),
+            ..PredictorOptions::default()
+        },
+    )
+    .unwrap();
+    let feed = Arc::new(Feed::new(true));
+    let replay = Replay {
+        dir: f.data.clone(),
+        speed: None,
+        seq_len: 8,
+        live: None,
+    };
+    let s = session::run(predictor, feed, move |f| replay.run(f), &mut quiet()).unwrap();
+    assert_eq!(s.skipped, 0);
+    assert_eq!(s.frames as usize, lengths.iter().sum::<usize>());
+    assert_eq!(s.estimates.len(), by_frame.len());
+
+    // Frame for frame: the i-th estimate of trajectory t is eval's prediction of frame i.
+    let mut worst = 0f64;
+    let mut index = [0usize; 3];
+    for (traj, _seq, est) in &s.estimates {
+        let i = index[*traj];
+        index[*traj] += 1;
+        let want = by_frame[&(*traj, i)];
+        for (got, want) in est.force_n.iter().zip(want) {
+            worst = worst.max((got - want as f64).abs());
+        }
+    }
+    assert!(worst < 1e-4, "replay differs from eval by up to {worst} N");
+
+    // And so the MAE against the paired force: eval's, within 1 %.
+    let r = s
+        .vs_paired
+        .as_ref()
+        .expect("the replay knows the paired forces");
+    assert_eq!(r.n, eval_scores.n);
+    for a in 0..3 {
+        let rel = (r.mae[a] - eval_scores.mae[a]).abs() / eval_scores.mae[a].max(1e-9);
+        assert!(
+            rel < 0.01,
+            "axis {a}: replay MAE {} vs eval {}",
+            r.mae[a],
+            eval_scores.mae[a]
+        );
+    }
+    let rel = (r.total_mae - eval_scores.total_mae).abs() / eval_scores.total_mae.max(1e-9);
+    assert!(rel < 0.01, "{} vs {}", r.total_mae, eval_scores.total_mae);
+    // The simulator's truth was recorded too, and is reported beside it.
+    assert_eq!(s.vs_sim.as_ref().map(|v| v.n), Some(r.n));
+}
+
+#[test]
+fn live_on_the_simulated_rig_every_frame_is_estimated_and_the_live_view_shows_it() {
+    let f = fixture();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let live = Arc::new(
+        rt.block_on(rig::live::LiveView::start_with_channels(
+            "127.0.0.1:0".parse().unwrap(),
+            rig::live::LiveLimits::default(),
+            vec![predicted_channel()],
+        ))
+        .unwrap(),
+    );
+    // A Foxglove client subscribed to the estimates before the run starts.
+    let addr = live.addr();
+    let mut ws = rt.block_on(async {
+        let req = format!("ws://{addr}/").into_client_request().unwrap();
+        let tcp = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let (mut ws, _) = tokio_tungstenite::client_async(req, tcp).await.unwrap();
+        let _info = next_text(&mut ws).await;
+        let adv = next_text(&mut ws).await;
+        let ch = adv["channels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["topic"] == TOPIC_PREDICTED)
+            .unwrap_or_else(|| panic!("{TOPIC_PREDICTED} not advertised: {adv}"))
+            .clone();
+        assert_eq!(ch["schemaName"], "rig.PredictedWrench");
+        assert!(
+            adv["channels"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|c| c["topic"] == "/camera/image"),
+            "the image is advertised beside it"
+        );
+        let sub = serde_json::json!({"op": "subscribe",
+            "subscriptions": [{"id": 7, "channelId": ch["id"]}]});
+        ws.send(Message::Text(sub.to_string().into()))
+            .await
+            .unwrap();
+        ws
+    });
+    // Let the subscription land before the first estimate.
+    std::thread::sleep(Duration::from_millis(200));
+
+    let config = target_config();
+    let predictor = Predictor::load(
+        &f.model,
+        PredictorOptions {
+            tare_frames: 4,
+            marker: marker_of(&config),
+            ..PredictorOptions::default()
+        },
+    )
+    .unwrap();
+    // The model's default stride: eval's for its 40-frame training trajectories.
+    assert_eq!(predictor.stride(), 5);
+    let feed = Arc::new(Feed::new(false));
+    let sim = SimRun {
+        config,
+        indenter: Indenter::load("sphere").unwrap(),
+        limit: 1,
+        speed_factor: 1.0,
+        live: Some(live.clone()),
+    };
+    let mut out = quiet().with_live(live.clone());
+    let s = {
+        let _rig = common::one_rig_at_a_time();
+        session::run(predictor, feed, move |f| sim.run(f), &mut out).unwrap()
+    };
+    eprintln!("{}", s.report());
+    assert!(s.frames >= 20, "{}", s.report());
+    assert_eq!(s.skipped, 0, "{}", s.report());
+    assert_eq!(s.processed, s.frames);
+    assert_eq!(s.tare_frames, 4);
+    assert_eq!(s.estimates.len() as u64, s.frames - 4);
+    let truth = s.vs_sim.as_ref().expect("the simulator's truth");
+    assert_eq!(truth.n, s.estimates.len());
+    assert!(s.latency_ms_p99.is_finite() && s.latency_ms_p99 > 0.0);
+
+    // The client got the estimates, with the frames' timestamps and the same forces.
+    let (sub, t_ns, body) = rt.block_on(async {
+        loop {
+            match tokio::time::timeout(Duration::from_secs(5), ws.next())
+                .await
+                .expect("an estimate within 5 s")
+                .unwrap()
+                .unwrap()
+            {
+                Message::Binary(b) => {
+                    break (
+                        u32::from_le_bytes(b[1..5].try_into().unwrap()),
+                        u64::from_le_bytes(b[5..13].try_into().unwrap()),
+                        serde_json::from_slice::<serde_json::Value>(&b[13..]).unwrap(),
+                    );
+                }
+                _ => continue,
+            }
+        }
+    });
+    assert_eq!(sub, 7);
+    let first = &s.estimates[0].2;
+    assert_eq!(t_ns, first.t_ns);
+    assert_eq!(body["frame_seq"], s.estimates[0].1);
+    for a in 0..3 {
+        let v = body["force_n"][a].as_f64().unwrap();
+        assert!((v - first.force_n[a]).abs() < 1e-9, "{body}");
+    }
+}
+
+async fn next_text(
+    ws: &mut tokio_tungstenite::WebSocketStream<tokio::net::TcpStream>,
+) -> serde_json::Value {
+    match tokio::time::timeout(Duration::from_secs(5), ws.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap()
+    {
+        Message::Text(t) => serde_json::from_str(&t).unwrap(),
+        other => panic!("expected text, got {other:?}"),
+    }
+}
+
+#[test]
+fn bad_input_is_refused_with_a_message_that_says_what_to_do() {
+    let f = fixture();
+    // No model there.
+    let missing = Predictor::load(Path::new("/nonexistent/model"), PredictorOptions::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        missing.contains("no model at /nonexistent/model"),
+        "{missing}"
+    );
+    assert!(missing.contains("rig train force --out"), "{missing}");
+
+    // A model of another format version.
+    let tmp = tempfile::tempdir().unwrap();
+    let other = tmp.path().join("model");
+    std::fs::create_dir(&other).unwrap();
+    for e in std::fs::read_dir(&f.model).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_file() {
+            std::fs::copy(&p, other.join(p.file_name().unwrap())).unwrap();
+        }
+    }
+    let info = other.join("model.json");
+    let text = std::fs::read_to_string(&info).unwrap();
+    assert!(text.contains("\"rig-force-model-1\""));
+    std::fs::write(
+        &info,
+        text.replace("rig-force-model-1", "rig-force-model-2"),
+    )
+    .unwrap();
+    let version = Predictor::load(&other, PredictorOptions::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(version.contains("\"rig-force-model-2\""), "{version}");
+    assert!(version.contains("reads \"rig-force-model-1\""), "{version}");
+    assert!(version.contains("retrain"), "{version}");
+
+    // Frames of another aspect ratio, and frames smaller than the model's input.
+    let mut p = Predictor::load(&f.model, PredictorOptions::default()).unwrap();
+    let wide = p
+        .push(&image::RgbImage::new(160, 90), 0)
+        .unwrap_err()
+        .to_string();
+    assert!(wide.contains("160×90") && wide.contains("32×24"), "{wide}");
+    assert!(wide.contains("aspect"), "{wide}");
+    let small = p
+        .push(&image::RgbImage::new(16, 12), 0)
+        .unwrap_err()
+        .to_string();
+    assert!(small.contains("smaller than the model's 32×24"), "{small}");
+    // The refused frames left the predictor as it was: a good frame is estimated.
+    let est = p.push(&image::RgbImage::new(160, 120), 5).unwrap().unwrap();
+    assert_eq!(est.t_ns, 5);
+    assert!(est.force_n.iter().all(|v| v.is_finite()));
+
+    // The command line: an error message and status 1, no panic.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["predict", "--model", "/nonexistent/model", "--replay"])
+        .arg(&f.data)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{}", common::output_text(&o));
+    assert!(err.contains("no model at"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
