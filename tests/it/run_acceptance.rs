@@ -2,7 +2,7 @@
 //! wrench matches the simulator's true wrench at the frame's capture time, within 2 % of the
 //! sensor's full range (the acceptance criterion) and within a bound derived from the
 //! simulated Nano17's noise; every sync error is below 1 ms; no frame is lost; every stage is
-//! labelled. Read independently of `rig dataset check`, straight from the MCAP files.
+//! labelled. Read with the recording reader, independently of `rig dataset check`'s checks.
 //!
 //! The run uses the deepest layer of the cone plan (0.8 mm), where the contact force is
 //! largest and changes fastest, so a timing error would show as a force error.
@@ -12,6 +12,7 @@ use std::path::Path;
 use std::process::Command;
 
 use rig::record::Manifest;
+use rig::record::reader::{Message, messages};
 
 use crate::common;
 
@@ -36,33 +37,17 @@ fn read(path: &Path) -> Frames {
         paired: BTreeMap::new(),
         images: BTreeSet::new(),
     };
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
-        let force = |v: &serde_json::Value| -> Option<[f64; 3]> {
-            let a = v.as_array()?;
-            Some([a[0].as_f64()?, a[1].as_f64()?, a[2].as_f64()?])
-        };
-        match m.channel.topic.as_str() {
-            "/sim/true_wrench" => {
-                f.truth.insert(
-                    v["frame_seq"].as_i64().unwrap(),
-                    force(&v["force_n"]).unwrap(),
-                );
+    for m in messages(&bytes).unwrap() {
+        match m.unwrap() {
+            Message::Truth(t) => {
+                f.truth.insert(t.frame_seq, t.wrench.force_n);
             }
-            "/sync/paired_wrench" => {
-                f.paired.insert(
-                    v["frame_seq"].as_i64().unwrap(),
-                    (
-                        force(&v["force_n"]),
-                        v["status"].as_str().unwrap().to_owned(),
-                        v["sync_error_ns"].as_f64(),
-                        v["stage"].as_str().map(str::to_owned),
-                    ),
-                );
+            Message::Paired(p) => {
+                f.paired
+                    .insert(p.frame_seq, (p.force_n, p.status, p.sync_error_ns, p.stage));
             }
-            "/camera/image" => {
-                f.images.insert(v["seq"].as_i64().unwrap());
+            Message::Frame { seq, .. } => {
+                f.images.insert(seq);
             }
             _ => {}
         }
