@@ -224,15 +224,11 @@ impl ImageEffects {
         }
     }
 
-    /// Every effect on: markers, shadows, 0.8 px blur, 25 % vignetting, noise σ = 1.5 levels.
-    pub const fn realistic() -> Self {
-        Self {
-            markers: true,
-            shadows: true,
-            blur_sigma_px: 0.8,
-            vignetting: 0.25,
-            noise_sigma: 1.5,
-        }
+    /// Every effect on, with a GelSight Mini's look: the defaults of `[optics.effects]`
+    /// ([`rig_core::optics::EffectsConfig::default`]: markers, shadows, 0.8 px blur, 25 %
+    /// vignetting, noise σ = 1.5 levels) on a sensor with markers.
+    pub fn realistic() -> Self {
+        Self::from_optics(&OpticsConfig::default())
     }
 }
 
