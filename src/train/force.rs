@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::batch::{Rng, Sequence, images_to_tensor, sample_sequences};
 use super::data::{ImageSpec, LabelledSet, Trajectory};
-use super::nn::{Depth, ForceNet, ForceShape, gamma_l1};
+use super::nn::{Depth, FastEncoder, ForceNet, ForceShape, gamma_l1};
 
 pub const MODEL_INFO: &str = "model.json";
 /// The format of a model directory this rig reads and writes ([`ModelInfo::format`]). A model
@@ -163,6 +163,19 @@ pub struct ForceModel {
     pub info: ModelInfo,
     net: ForceNet,
     dev: Device,
+    /// The encoder's CPU inference form, used by [`Self::encode`] and [`Self::predict`] on the
+    /// CPU (same numbers as burn's forward to float rounding; about twice as fast).
+    fast: Option<FastEncoder>,
+}
+
+/// The encoder's CPU inference form on the CPU backend; `None` on the GPU, where burn's
+/// kernels run.
+fn fast_form(net: &ForceNet) -> Option<FastEncoder> {
+    if cfg!(feature = "gpu") {
+        None
+    } else {
+        net.fast_encoder()
+    }
 }
 
 pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
@@ -548,7 +561,13 @@ impl ForceModel {
         let weights = checkpoint_set(dir).path(WEIGHTS);
         net.load_from(&mut SafetensorsStore::from_file(&weights))
             .map_err(|e| anyhow::anyhow!("cannot load {}: {e:?}", weights.display()))?;
-        Ok(Self { info, net, dev })
+        let fast = fast_form(&net);
+        Ok(Self {
+            info,
+            net,
+            dev,
+            fast,
+        })
     }
 
     pub fn spec(&self) -> ImageSpec {
@@ -579,13 +598,23 @@ impl ForceModel {
             last_loss: f64::NAN,
             frames_per_trajectory: Some(frames_per_trajectory),
         };
-        Self { info, net, dev }
+        let fast = fast_form(&net);
+        Self {
+            info,
+            net,
+            dev,
+            fast,
+        }
     }
 
     /// Embeddings of `frames` (each `spec`-sized RGB), one per frame: the encoder alone.
     pub fn encode(&self, frames: &[&[u8]]) -> Vec<Vec<f32>> {
         if frames.is_empty() {
             return Vec::new();
+        }
+        if let Some(fast) = &self.fast {
+            let spec = &self.info.spec;
+            return fast.encode(frames, spec.width as usize, spec.height as usize);
         }
         let x = images_to_tensor(frames, &self.info.spec, &self.dev);
         let e = self.net.encode(x);
@@ -637,9 +666,17 @@ impl ForceModel {
                 .iter()
                 .flat_map(|s| s.frames.iter().map(|&i| trajs[s.traj].frame(i, &spec)))
                 .collect();
-            let x = images_to_tensor(&frames, &spec, &self.dev);
-            let [_, c, h, w] = x.dims();
-            let y = self.net.forward(x.reshape([chunk.len(), t, c, h, w]));
+            let y = if self.fast.is_some() {
+                let d = self.info.shape.embed;
+                let flat: Vec<f32> = self.encode(&frames).into_iter().flatten().collect();
+                let s =
+                    Tensor::<3>::from_data(TensorData::new(flat, [chunk.len(), t, d]), &self.dev);
+                self.net.head(s)
+            } else {
+                let x = images_to_tensor(&frames, &spec, &self.dev);
+                let [_, c, h, w] = x.dims();
+                self.net.forward(x.reshape([chunk.len(), t, c, h, w]))
+            };
             let v: Vec<f32> = y
                 .into_data()
                 .convert::<f32>()

@@ -115,38 +115,106 @@ pub fn luminance(img: &RgbImage) -> Vec<f32> {
         .collect()
 }
 
-fn disc(radius: usize) -> Vec<(isize, isize)> {
+/// Half-widths of a disc of `radius`, row by row: row `dy` (−r..=r) covers `dx` in
+/// `−a..=a` with `a = half[dy + r]`, exactly the integer points `dx² + dy² ≤ r²`.
+fn disc_rows(radius: usize) -> Vec<usize> {
     let r = radius as isize;
-    let mut out = Vec::new();
-    for dy in -r..=r {
-        for dx in -r..=r {
-            if dx * dx + dy * dy <= r * r {
-                out.push((dx, dy));
-            }
-        }
-    }
-    out
+    (-r..=r)
+        .map(|dy| {
+            (0..=r)
+                .rev()
+                .find(|dx| dx * dx + dy * dy <= r * r)
+                .unwrap_or(0) as usize
+        })
+        .collect()
 }
 
-/// Grey dilation (`max`) or erosion (`min`) with a disc; pixels outside the image are ignored.
-fn morph(v: &[f32], w: usize, h: usize, se: &[(isize, isize)], max: bool) -> Vec<f32> {
-    let mut out = vec![0.0; v.len()];
-    for y in 0..h {
-        for x in 0..w {
-            let mut acc = if max {
-                f32::NEG_INFINITY
-            } else {
-                f32::INFINITY
-            };
-            for &(dx, dy) in se {
-                let (xx, yy) = (x as isize + dx, y as isize + dy);
-                if xx < 0 || yy < 0 || xx >= w as isize || yy >= h as isize {
-                    continue;
-                }
-                let s = v[yy as usize * w + xx as usize];
-                acc = if max { acc.max(s) } else { acc.min(s) };
+/// The max (or min) of each window `x−a..=x+a` of `row`, positions outside the row ignored:
+/// van Herk (1992) / Gil and Werman (1993), three comparisons a pixel whatever `a`.
+fn window_extreme(row: &[f32], a: usize, max: bool, out: &mut [f32]) {
+    let pick = |p: f32, q: f32| if max { p.max(q) } else { p.min(q) };
+    let fill = if max {
+        f32::NEG_INFINITY
+    } else {
+        f32::INFINITY
+    };
+    let k = 2 * a + 1;
+    // The row padded by `a` neutral values on each side, so every window is whole.
+    let n = row.len() + 2 * a;
+    let padded = |i: usize| {
+        if i < a || i >= a + row.len() {
+            fill
+        } else {
+            row[i - a]
+        }
+    };
+    // g: running extreme from each block's start; h: from each block's end.
+    let mut g = vec![fill; n];
+    let mut h = vec![fill; n];
+    for i in 0..n {
+        g[i] = if i % k == 0 {
+            padded(i)
+        } else {
+            pick(g[i - 1], padded(i))
+        };
+    }
+    for i in (0..n).rev() {
+        h[i] = if i % k == k - 1 || i == n - 1 {
+            padded(i)
+        } else {
+            pick(h[i + 1], padded(i))
+        };
+    }
+    // The window of output x is padded[x ..= x + 2a]: h at its start, g at its end.
+    for (x, o) in out.iter_mut().enumerate() {
+        *o = pick(h[x], g[x + 2 * a]);
+    }
+}
+
+/// Grey dilation (`max`) or erosion (`min`) with a disc of `radius`; pixels outside the image
+/// are ignored. The disc is taken row by row: a 1-D window extreme per distinct half-width
+/// (each in constant time a pixel), then the extreme over the disc's rows. For the dots of a
+/// GelSight image (radius ≈ 9 px) that is about 6× fewer operations than visiting the 253
+/// points of the disc at every pixel, with the same result (max and min are exact).
+fn morph(v: &[f32], w: usize, h: usize, radius: usize, max: bool) -> Vec<f32> {
+    let half = disc_rows(radius);
+    let mut widths = half.clone();
+    widths.sort_unstable();
+    widths.dedup();
+    // rows[j][y * w + x]: the window extreme of half-width widths[j] along row y.
+    let mut rows = vec![vec![0f32; v.len()]; widths.len()];
+    for (j, &a) in widths.iter().enumerate() {
+        for y in 0..h {
+            window_extreme(
+                &v[y * w..(y + 1) * w],
+                a,
+                max,
+                &mut rows[j][y * w..(y + 1) * w],
+            );
+        }
+    }
+    let pick = |p: f32, q: f32| if max { p.max(q) } else { p.min(q) };
+    let mut out = vec![
+        if max {
+            f32::NEG_INFINITY
+        } else {
+            f32::INFINITY
+        };
+        v.len()
+    ];
+    let r = radius as isize;
+    for (i, &a) in half.iter().enumerate() {
+        let dy = i as isize - r;
+        let src = &rows[widths.binary_search(&a).expect("listed")];
+        for y in 0..h {
+            let yy = y as isize + dy;
+            if yy < 0 || yy >= h as isize {
+                continue;
             }
-            out[y * w + x] = acc;
+            let (o, s) = (&mut out[y * w..(y + 1) * w], &src[yy as usize * w..][..w]);
+            for (o, &s) in o.iter_mut().zip(s) {
+                *o = pick(*o, s);
+            }
         }
     }
     out
@@ -158,8 +226,7 @@ pub fn black_hat(lum: &[f32], w: usize, h: usize, radius: usize) -> Vec<f32> {
     if w * h == 0 || lum.len() != w * h {
         return vec![0.0; lum.len()];
     }
-    let se = disc(radius);
-    let closed = morph(&morph(lum, w, h, &se, true), w, h, &se, false);
+    let closed = morph(&morph(lum, w, h, radius, true), w, h, radius, false);
     closed
         .iter()
         .zip(lum)
@@ -579,6 +646,58 @@ mod tests {
         // Far from any dot (between columns and rows) the marker image is dark.
         assert!(m.get_pixel(14, 14)[0] < 20);
         assert!(Modality::Marker.apply(&bg, &p).pixels().all(|v| v[0] < 60));
+    }
+
+    /// The point-by-point definition: the extreme over every point of the disc inside the
+    /// image.
+    fn morph_by_points(v: &[f32], w: usize, h: usize, radius: usize, max: bool) -> Vec<f32> {
+        let r = radius as isize;
+        let mut out = vec![0.0; v.len()];
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let mut acc = if max {
+                    f32::NEG_INFINITY
+                } else {
+                    f32::INFINITY
+                };
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let (xx, yy) = (x + dx, y + dy);
+                        if dx * dx + dy * dy > r * r
+                            || xx < 0
+                            || yy < 0
+                            || xx >= w as isize
+                            || yy >= h as isize
+                        {
+                            continue;
+                        }
+                        let s = v[(yy * w as isize + xx) as usize];
+                        acc = if max { acc.max(s) } else { acc.min(s) };
+                    }
+                }
+                out[(y * w as isize + x) as usize] = acc;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn row_decomposed_morphology_equals_the_disc_definition() {
+        // Sizes smaller and larger than the disc, radii 0..=9 (the product's is 9).
+        for (w, h) in [(1, 1), (3, 2), (17, 11), (40, 23)] {
+            let v: Vec<f32> = (0..w * h)
+                .map(|i| ((i * 7919) % 101) as f32 / 101.0)
+                .collect();
+            for radius in [0, 1, 2, 4, 9] {
+                for max in [true, false] {
+                    assert_eq!(
+                        morph(&v, w, h, radius, max),
+                        morph_by_points(&v, w, h, radius, max),
+                        "{w}×{h}, radius {radius}, max {max}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

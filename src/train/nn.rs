@@ -22,6 +22,9 @@ use burn::tensor::ops::PadMode;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+mod fast;
+pub use fast::FastEncoder;
+
 /// Reflection padding of the two spatial axes of an NCHW tensor (the CycleGAN generator pads
 /// this way so that borders carry image content, not zeros).
 pub fn reflect_pad(x: Tensor<4>, p: usize) -> Tensor<4> {
@@ -461,6 +464,12 @@ impl ForceNet {
     /// the others in the batch). `rig predict` computes it once per frame and caches it.
     pub fn encode(&self, x: Tensor<4>) -> Tensor<2> {
         self.encoder.forward(x)
+    }
+
+    /// The encoder compiled for CPU inference (see [`FastEncoder`]), `None` if it has a layer
+    /// that form does not cover.
+    pub fn fast_encoder(&self) -> Option<FastEncoder> {
+        FastEncoder::new(&self.encoder)
     }
 
     /// Everything after the encoder: embeddings `[B, T, embed]` → forces `[B, T, 3]` in 0..1.
