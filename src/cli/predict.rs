@@ -204,12 +204,27 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<Summary> {
         out = out.with_live(live.clone());
     }
     let seq_len = info.config.seq_len;
+    // Ctrl-C ends the run like a normal end (the summary, a complete MCAP file); a second one
+    // quits at once. (The simulated rig and the camera also stop their sources on it.)
+    let stop_on_ctrl_c = |feed: &Arc<Feed>| {
+        let feed = feed.clone();
+        rt.spawn(async move {
+            if tokio::signal::ctrl_c().await.is_ok() {
+                feed.request_stop();
+                eprintln!("\nCtrl-C: stopping after this frame (Ctrl-C again quits at once)");
+                if tokio::signal::ctrl_c().await.is_ok() {
+                    std::process::exit(130);
+                }
+            }
+        });
+    };
     let summary = if let Some(dir) = &args.replay {
         let speed = match args.replay_speed {
             ReplaySpeed::Max => None,
             ReplaySpeed::Times(x) => Some(x),
         };
         let feed = Arc::new(Feed::new(speed.is_none()));
+        stop_on_ctrl_c(&feed);
         let source = Replay {
             dir: dir.clone(),
             speed,
@@ -220,6 +235,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<Summary> {
     } else {
         let config = config.expect("a live run has a config");
         let feed = Arc::new(Feed::new(false));
+        stop_on_ctrl_c(&feed);
         if config.robot.simulated {
             let source = SimRun {
                 indenter: Indenter::load(&args.indenter)?,

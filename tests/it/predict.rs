@@ -408,3 +408,145 @@ fn bad_input_is_refused_with_a_message_that_says_what_to_do() {
     assert!(err.contains("no model at"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// Splits a CSV line of `rig predict --csv` into its fields.
+fn csv_fields(line: &str) -> Vec<&str> {
+    line.split(',').collect()
+}
+
+#[test]
+fn the_command_line_writes_the_same_estimates_as_csv_json_lines_and_mcap() {
+    let f = fixture();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_rig"))
+            .args(["predict", "--model"])
+            .arg(&f.model)
+            .arg("--replay")
+            .arg(&f.data)
+            .args(["--replay-speed", "max"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", common::output_text(&o));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let mcap_path = tmp.path().join("predicted.mcap");
+    let csv = run(&["--csv", "--out", mcap_path.to_str().unwrap()]);
+    let json = run(&[]);
+
+    // CSV: the header, then one row per frame of the dataset (a replay estimates every frame
+    // and takes no tare), with the paired force of the recording beside the estimate.
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some(rig::predict::output::CSV_HEADER));
+    let rows: Vec<Vec<&str>> = lines.map(csv_fields).collect();
+    let frames: usize = {
+        let model = ForceModel::load(&f.model).unwrap();
+        let set = data::load_eval(&f.data, &model.spec(), false).unwrap();
+        set.trajectories.iter().map(|t| t.frames).sum()
+    };
+    assert_eq!(rows.len(), frames, "{csv}");
+    let num = |s: &str| {
+        s.parse::<f64>()
+            .unwrap_or_else(|_| panic!("{s:?} in {csv}"))
+    };
+    for r in &rows {
+        assert_eq!(r.len(), 12, "{r:?}");
+        assert!(!r[1].is_empty(), "the trajectory is named: {r:?}");
+        for v in &r[3..9] {
+            assert!(num(v).is_finite(), "{r:?}");
+        }
+    }
+
+    // JSON lines: the same estimates, in the same order, at full precision.
+    let objs: Vec<serde_json::Value> = json
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert_eq!(objs.len(), rows.len());
+    for (o, r) in objs.iter().zip(&rows) {
+        assert_eq!(o["t_ns"].as_u64().unwrap(), r[0].parse::<u64>().unwrap());
+        assert_eq!(o["trajectory"].as_str().unwrap(), r[1]);
+        assert_eq!(o["seq"].as_i64().unwrap(), r[2].parse::<i64>().unwrap());
+        for a in 0..3 {
+            let v = o["force_n"][a].as_f64().unwrap();
+            // CSV carries 5 decimals.
+            assert!((v - num(r[3 + a])).abs() <= 0.6e-5, "{o} vs {r:?}");
+            let p = o["paired_force_n"][a].as_f64().unwrap();
+            assert!((p - num(r[6 + a])).abs() <= 0.6e-5, "{o} vs {r:?}");
+        }
+    }
+
+    // The MCAP file: complete (no .partial left), one /predict/wrench message per estimate,
+    // stamped with its frame's time, holding the same forces.
+    assert!(!tmp.path().join("predicted.mcap.partial").exists());
+    let bytes = std::fs::read(&mcap_path).unwrap();
+    let msgs: Vec<_> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .collect();
+    assert_eq!(msgs.len(), objs.len());
+    for (m, o) in msgs.iter().zip(&objs) {
+        assert_eq!(m.channel.topic, TOPIC_PREDICTED);
+        assert_eq!(m.log_time, o["t_ns"].as_u64().unwrap());
+        let body: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        assert_eq!(body["frame_seq"], o["seq"]);
+        for a in 0..3 {
+            let got = body["force_n"][a].as_f64().unwrap();
+            let want = o["force_n"][a].as_f64().unwrap();
+            assert!(
+                (got - want).abs() <= 1e-9 * want.abs().max(1.0),
+                "{body} vs {o}"
+            );
+        }
+    }
+}
+
+#[test]
+fn ctrl_c_ends_a_replay_with_its_summary_and_a_complete_mcap_file() {
+    let f = fixture();
+    let tmp = tempfile::tempdir().unwrap();
+    let mcap_path = tmp.path().join("predicted.mcap");
+    // At the recorded timing the dataset takes 12 s; interrupt it after 3.
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["predict", "--model"])
+        .arg(&f.model)
+        .arg("--replay")
+        .arg(&f.data)
+        .args(["--quiet", "--summary-json", "--out"])
+        .arg(&mcap_path)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    let sent = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{}", common::output_text(&o));
+    assert!(err.contains("Ctrl-C: stopping"), "{err}");
+    assert!(err.contains("latency"), "the summary is printed: {err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    let processed = summary["processed"].as_u64().unwrap();
+    let total: usize = {
+        let model = ForceModel::load(&f.model).unwrap();
+        let set = data::load_eval(&f.data, &model.spec(), false).unwrap();
+        set.trajectories.iter().map(|t| t.frames).sum()
+    };
+    assert!(
+        (processed as usize) < total,
+        "stopped early: {processed} of {total}"
+    );
+    // Every estimate made is in the file, and the file is whole.
+    let bytes = std::fs::read(&mcap_path).expect("the MCAP file was completed");
+    let msgs: Vec<_> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .collect::<Result<_, _>>()
+        .unwrap();
+    assert_eq!(msgs.len() as u64, processed);
+}
