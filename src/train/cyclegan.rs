@@ -235,6 +235,32 @@ impl CycleGan {
         })
     }
 
+    /// Iterations a second of [`Self::step`] on random `width × height` images (the values do
+    /// not change the work), timed over `steps` after one untimed warm-up: for
+    /// `rig bench train --speed` and its side-by-side with PyTorch.
+    pub fn step_speed(cfg: &TranslateConfig, width: usize, height: usize, steps: usize) -> f64 {
+        let mut gan = Self::new(cfg);
+        let b = cfg.batch.max(1);
+        let img = |gan: &Self| {
+            Tensor::<4>::random(
+                [b, 3, height, width],
+                burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                &gan.dev,
+            )
+        };
+        let steps = steps.max(1);
+        let mut timed = 0.0;
+        for i in 0..=steps {
+            let (s, t) = (img(&gan), img(&gan));
+            let t0 = std::time::Instant::now();
+            let _ = gan.step(s, t, cfg.lr);
+            if i >= 1 {
+                timed += t0.elapsed().as_secs_f64();
+            }
+        }
+        steps as f64 / timed.max(1e-9)
+    }
+
     /// Cycle loss of a batch without training (for tests and logs).
     pub fn cycle_loss(&self, real_s: Tensor<4>, real_t: Tensor<4>) -> f64 {
         let g = self.gens.valid();

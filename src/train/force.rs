@@ -465,6 +465,68 @@ pub fn train(
     })
 }
 
+/// What the force model's training step and inference cost on this machine: for
+/// `rig bench train --speed` and its side-by-side with PyTorch (`scripts/bench-torch`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StepSpeed {
+    /// Training: sequences (of `seq_len` frames) a second through forward, backward and the
+    /// optimiser step, as [`train`] runs them (the loss read back each step).
+    pub sequences_per_s: f64,
+    pub images_per_s: f64,
+    /// Inference as `rig eval` runs it ([`ForceModel::sequence_forces`] on a batch of
+    /// `batch` sequences), per frame.
+    pub infer_ms_per_frame: f64,
+}
+
+/// Times `steps` training steps of `cfg`'s model on `spec`-sized random frames (after two
+/// untimed warm-up steps), then `steps` inference batches of the same shape. The values of the
+/// data do not change the work, so no dataset is needed.
+pub fn step_speed(cfg: &ForceConfig, spec: ImageSpec, steps: usize) -> StepSpeed {
+    let dev = device();
+    let shape = shape_for(cfg, &spec);
+    let (adev, mut net) = initial_network(&shape, &dev, cfg.seed);
+    let mut optim: ModuleOptimizer = match cfg.optimizer {
+        Optimizer::Adam => AdamConfig::new().init(),
+        Optimizer::Sgd => SgdConfig::new().init(),
+    };
+    let (b, t) = (cfg.batch.max(1), cfg.seq_len.max(1));
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    let mut rng = Rng(cfg.seed);
+    let frames: Vec<Vec<u8>> = (0..b * t)
+        .map(|_| (0..w * h * 3).map(|_| rng.below(256) as u8).collect())
+        .collect();
+    let refs: Vec<&[u8]> = frames.iter().map(|f| f.as_slice()).collect();
+    let labels: Vec<f32> = (0..b * t * 3).map(|_| rng.unit() as f32).collect();
+    let steps = steps.max(1);
+    let mut timed = 0.0;
+    for i in 0..steps + 2 {
+        let t0 = std::time::Instant::now();
+        let x = images_to_tensor(&refs, &spec, &adev).reshape([b, t, 3, h, w]);
+        let y = Tensor::<3>::from_data(TensorData::new(labels.clone(), [b, t, 3]), &adev);
+        let loss = gamma_l1(net.forward(x), y, cfg.gamma);
+        let _ = loss.clone().into_scalar::<f32>();
+        let grads = GradientsParams::from_grads(loss.backward(), &net);
+        net = optim.step(cfg.lr, net, grads);
+        if i >= 2 {
+            timed += t0.elapsed().as_secs_f64();
+        }
+    }
+    let seqs = (steps * b) as f64 / timed.max(1e-9);
+
+    let model = ForceModel::untrained(cfg, spec, 40);
+    let _ = model.sequence_forces(&refs, b, t);
+    let t0 = std::time::Instant::now();
+    for _ in 0..steps {
+        let _ = model.sequence_forces(&refs, b, t);
+    }
+    let infer = t0.elapsed().as_secs_f64() * 1e3 / (steps * b * t) as f64;
+    StepSpeed {
+        sequences_per_s: seqs,
+        images_per_s: seqs * t as f64,
+        infer_ms_per_frame: infer,
+    }
+}
+
 /// The checkpoint files of `dir` as one set: replaced whole after each epoch, the
 /// description ([`MODEL_INFO`]) last, so a crash never leaves files of two epochs (see
 /// [`crate::durable::FileSet`]).
@@ -650,6 +712,30 @@ impl ForceModel {
         self.info.range.denormalise([y[k], y[k + 1], y[k + 2]])
     }
 
+    /// Forces (N) at every position of `b` sequences of `t` frames each, given as `b · t`
+    /// frames in sequence order: the encoder (its CPU form on the CPU), then the LSTM and MLP.
+    pub fn sequence_forces(&self, frames: &[&[u8]], b: usize, t: usize) -> Vec<[f32; 3]> {
+        assert_eq!(frames.len(), b * t, "b · t frames");
+        let y = if self.fast.is_some() {
+            let d = self.info.shape.embed;
+            let flat: Vec<f32> = self.encode(frames).into_iter().flatten().collect();
+            let s = Tensor::<3>::from_data(TensorData::new(flat, [b, t, d]), &self.dev);
+            self.net.head(s)
+        } else {
+            let x = images_to_tensor(frames, &self.info.spec, &self.dev);
+            let [_, c, h, w] = x.dims();
+            self.net.forward(x.reshape([b, t, c, h, w]))
+        };
+        let v: Vec<f32> = y
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .expect("f32 output");
+        v.chunks_exact(3)
+            .map(|f| self.info.range.denormalise([f[0], f[1], f[2]]))
+            .collect()
+    }
+
     /// Forces (N) for each frame of each sequence: `[sequence][position]`.
     pub fn predict(
         &self,
@@ -666,32 +752,8 @@ impl ForceModel {
                 .iter()
                 .flat_map(|s| s.frames.iter().map(|&i| trajs[s.traj].frame(i, &spec)))
                 .collect();
-            let y = if self.fast.is_some() {
-                let d = self.info.shape.embed;
-                let flat: Vec<f32> = self.encode(&frames).into_iter().flatten().collect();
-                let s =
-                    Tensor::<3>::from_data(TensorData::new(flat, [chunk.len(), t, d]), &self.dev);
-                self.net.head(s)
-            } else {
-                let x = images_to_tensor(&frames, &spec, &self.dev);
-                let [_, c, h, w] = x.dims();
-                self.net.forward(x.reshape([chunk.len(), t, c, h, w]))
-            };
-            let v: Vec<f32> = y
-                .into_data()
-                .convert::<f32>()
-                .try_to_vec::<f32>()
-                .expect("f32 output");
-            for s in 0..chunk.len() {
-                out.push(
-                    (0..t)
-                        .map(|i| {
-                            let k = (s * t + i) * 3;
-                            self.info.range.denormalise([v[k], v[k + 1], v[k + 2]])
-                        })
-                        .collect(),
-                );
-            }
+            let v = self.sequence_forces(&frames, chunk.len(), t);
+            out.extend(v.chunks_exact(t).map(|s| s.to_vec()));
         }
         out
     }

@@ -38,6 +38,118 @@ pub struct TrainBenchArgs {
     pub quick: bool,
     #[arg(long, value_name = "DIR", default_value = "bench-out")]
     pub out: PathBuf,
+    /// Only the speed table, on random data (no dataset needed): training sequences/s and
+    /// inference ms/frame of the force model per encoder depth at --size, --width and
+    /// --batch, and CycleGAN iterations/s. `scripts/bench-torch` runs the same shapes in
+    /// PyTorch beside it. Writes `speed.csv`.
+    #[arg(long)]
+    pub speed: bool,
+    /// --speed: the encoder's first-stage width.
+    #[arg(long, default_value_t = 16)]
+    pub width: usize,
+    /// --speed: sequences a batch.
+    #[arg(long, default_value_t = 8)]
+    pub batch: usize,
+    /// --speed: timed steps per measurement.
+    #[arg(long, default_value_t = 10)]
+    pub steps: usize,
+    /// --speed: encoder depths to measure.
+    #[arg(long, value_delimiter = ',', default_value = "18,34,50")]
+    pub depths: Vec<Depth>,
+    /// --speed: the CycleGAN measured, NGF,RES_BLOCKS,WIDTHxHEIGHT,BATCH (the quick demo's by
+    /// default); `none` to skip it.
+    #[arg(long, default_value = "8,2,32x24,4")]
+    pub gan: String,
+}
+
+/// `WIDTHxHEIGHT`.
+fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    s.split_once('x')
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .filter(|&(w, h)| w > 0 && h > 0)
+        .with_context(|| format!("{s:?}: a size is WIDTHxHEIGHT, e.g. 64x48"))
+}
+
+/// `rig bench train --speed`.
+fn run_speed(args: &TrainBenchArgs) -> anyhow::Result<()> {
+    use crate::train::cyclegan::{CycleGan, TranslateConfig};
+    use crate::train::nn::GanShape;
+    let (w, h) = parse_size(&args.size)?;
+    let spec = ImageSpec {
+        width: w,
+        height: h,
+        modality: Modality::RgbMarker,
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = std::env::var("RAYON_NUM_THREADS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(threads);
+    std::fs::create_dir_all(&args.out)?;
+    let mut csv = String::from("what,depth,width,size,batch,threads,value,unit\n");
+    println!(
+        "rig, {threads} threads: force model at {w}×{h}, width {}, batch {} × T = 8\n",
+        args.width, args.batch
+    );
+    println!("| encoder | train seq/s | train img/s | inference ms/frame |");
+    println!("| --- | ---: | ---: | ---: |");
+    for &depth in &args.depths {
+        let cfg = ForceConfig {
+            depth,
+            width: args.width,
+            batch: args.batch,
+            ..ForceConfig::default()
+        };
+        let s = force::step_speed(&cfg, spec, args.steps);
+        println!(
+            "| ResNet-{depth} | {:.1} | {:.0} | {:.3} |",
+            s.sequences_per_s, s.images_per_s, s.infer_ms_per_frame
+        );
+        let size = format!("{w}x{h}");
+        for (what, v, unit) in [
+            ("train", s.sequences_per_s, "seq/s"),
+            ("infer", s.infer_ms_per_frame, "ms/frame"),
+        ] {
+            csv += &format!(
+                "{what},{depth},{},{size},{},{threads},{v:.4},{unit}\n",
+                args.width, args.batch
+            );
+        }
+    }
+    if args.gan != "none" {
+        let parts: Vec<&str> = args.gan.split(',').collect();
+        let [ngf, blocks, size, batch] = parts[..] else {
+            anyhow::bail!(
+                "--gan {:?}: NGF,RES_BLOCKS,WIDTHxHEIGHT,BATCH or none",
+                args.gan
+            );
+        };
+        let num = |v: &str| {
+            v.parse::<usize>()
+                .ok()
+                .filter(|&n| n > 0)
+                .with_context(|| format!("--gan: {v:?} is not a positive number"))
+        };
+        let (gw, gh) = parse_size(size)?;
+        let (ngf, blocks, batch) = (num(ngf)?, num(blocks)?, num(batch)?);
+        let cfg = TranslateConfig {
+            shape: GanShape {
+                ngf,
+                ndf: ngf,
+                res_blocks: blocks,
+                disc_layers: 3,
+            },
+            batch,
+            ..TranslateConfig::default()
+        };
+        let it = CycleGan::step_speed(&cfg, gw as usize, gh as usize, args.steps);
+        println!("\nCycleGAN (ngf {ngf}, {blocks} blocks, {gw}×{gh}, batch {batch}): {it:.2} it/s");
+        csv += &format!("gan,,{ngf},{gw}x{gh},{batch},{threads},{it:.4},it/s\n");
+    }
+    let path = args.out.join("speed.csv");
+    std::fs::write(&path, csv)?;
+    println!("\n{}", path.display());
+    Ok(())
 }
 
 #[derive(Debug, Clone)]
@@ -98,6 +210,9 @@ pub fn holdout_mae(model: &ForceModel, set: &LabelledSet) -> [f64; 3] {
 }
 
 pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
+    if args.speed {
+        return run_speed(args);
+    }
     let (w, h) = args
         .size
         .split_once('x')

@@ -170,11 +170,8 @@ impl Conv {
         let lhs: &[f32] = if direct { &x.v } else { col };
         let mut out = vec![0f32; m * self.c_out];
         let n = self.c_out;
-        let par = if m * n * kk >= 1 << 22 && rayon_threads() > 1 {
-            Parallelism::Rayon(0)
-        } else {
-            Parallelism::None
-        };
+        // One thread: the frames of a batch run in parallel instead.
+        let par = Parallelism::None;
         // SAFETY: dst is m × n, lhs m × kk and rhs kk × n, all row-major and of those lengths
         // (asserted); the three do not overlap.
         assert!(lhs.len() >= m * kk && self.w.len() == kk * n && out.len() == m * n);
@@ -230,33 +227,37 @@ impl Conv {
     }
 }
 
-fn rayon_threads() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
-}
-
 /// The im2col matrix of `x` for `conv`: row `(n, oy, ox)` holds the `k × k × c_in` inputs under
-/// the kernel at that output, zeros where it hangs over the border.
+/// the kernel at that output, zeros where it hangs over the border. Every element is written
+/// (the buffer is reused without clearing).
 fn im2col(x: &Map, conv: &Conv, oh: usize, ow: usize, col: &mut Vec<f32>) {
     let (k, s, p, c) = (conv.k, conv.stride, conv.pad, x.c);
     let kk = k * k * c;
-    col.clear();
-    col.resize(x.n * oh * ow * kk, 0.0);
+    let len = x.n * oh * ow * kk;
+    if col.len() < len {
+        col.resize(len, 0.0);
+    }
+    col.truncate(len);
     for n in 0..x.n {
         for oy in 0..oh {
             for ox in 0..ow {
                 let row = &mut col[((n * oh + oy) * ow + ox) * kk..][..kk];
                 for ky in 0..k {
                     let iy = (oy * s + ky) as isize - p as isize;
+                    let taps = &mut row[ky * k * c..(ky + 1) * k * c];
                     if iy < 0 || iy >= x.h as isize {
-                        continue; // zeros already
+                        taps.fill(0.0);
+                        continue;
                     }
                     for kx in 0..k {
                         let ix = (ox * s + kx) as isize - p as isize;
+                        let dst = &mut taps[kx * c..(kx + 1) * c];
                         if ix < 0 || ix >= x.w as isize {
-                            continue;
+                            dst.fill(0.0);
+                        } else {
+                            let src = ((n * x.h + iy as usize) * x.w + ix as usize) * c;
+                            dst.copy_from_slice(&x.v[src..src + c]);
                         }
-                        let src = ((n * x.h + iy as usize) * x.w + ix as usize) * c;
-                        row[(ky * k + kx) * c..][..c].copy_from_slice(&x.v[src..src + c]);
                     }
                 }
             }
@@ -383,65 +384,65 @@ impl FastEncoder {
     }
 
     /// Embeddings of `frames`, each an RGB image of `width × height` (HWC, u8), scaled to
-    /// [-1, 1] as the trainer feeds them: one `d_out`-vector per frame.
+    /// [-1, 1] as the trainer feeds them: one `d_out`-vector per frame. The frames of a batch
+    /// are encoded in parallel, each on one thread (a frame's products are too small to split
+    /// well, and a batch-sized im2col matrix would not stay in cache).
     pub fn encode(&self, frames: &[&[u8]], width: usize, height: usize) -> Vec<Vec<f32>> {
-        let n = frames.len();
-        if n == 0 {
-            return Vec::new();
+        use rayon::prelude::*;
+        if frames.len() > 1 && rayon::current_num_threads() > 1 {
+            frames
+                .par_iter()
+                .map_init(Vec::new, |col, f| self.encode_one(f, width, height, col))
+                .collect()
+        } else {
+            let mut col = Vec::new();
+            frames
+                .iter()
+                .map(|f| self.encode_one(f, width, height, &mut col))
+                .collect()
         }
-        let px = width * height * 3;
-        let mut v = Vec::with_capacity(n * px);
-        for f in frames {
-            assert_eq!(f.len(), px, "frame of another size than the model's input");
-            v.extend(f.iter().map(|&b| b as f32 / 127.5 - 1.0));
-        }
+    }
+
+    /// One frame's embedding; `col` is scratch.
+    fn encode_one(
+        &self,
+        frame: &[u8],
+        width: usize,
+        height: usize,
+        col: &mut Vec<f32>,
+    ) -> Vec<f32> {
+        assert_eq!(
+            frame.len(),
+            width * height * 3,
+            "frame of another size than the model's input"
+        );
         let x = Map {
-            n,
+            n: 1,
             h: height,
             w: width,
             c: 3,
-            v,
+            v: frame.iter().map(|&b| b as f32 / 127.5 - 1.0).collect(),
         };
-        let mut col = Vec::new();
-        let mut x = self.stem.run(&x, None, true, &mut col);
+        let mut x = self.stem.run(&x, None, true, col);
         if let Some(p) = &self.pool {
             x = p.run(&x);
         }
         for u in &self.units {
-            x = u.run(&x, &mut col);
+            x = u.run(&x, col);
         }
         let flat = adaptive_avg_flat(&x, self.cells);
-        let d_in = flat.len() / n;
         let d = self.d_out;
-        let mut out = vec![0f32; n * d];
-        // SAFETY: out n × d, flat n × d_in, embed_w d_in × d, row-major, disjoint.
-        assert!(self.embed_w.len() == d_in * d);
-        unsafe {
-            gemm::gemm(
-                n,
-                d,
-                d_in,
-                out.as_mut_ptr(),
-                1,
-                d as isize,
-                false,
-                flat.as_ptr(),
-                1,
-                d_in as isize,
-                self.embed_w.as_ptr(),
-                1,
-                d as isize,
-                0.0,
-                1.0,
-                false,
-                false,
-                false,
-                Parallelism::None,
-            );
+        assert_eq!(self.embed_w.len(), flat.len() * d);
+        // One row: a plain dot product per output, in the order of burn's matmul rows.
+        let mut out = self.embed_b.clone();
+        for (i, &v) in flat.iter().enumerate() {
+            if v != 0.0 {
+                for (o, &w) in out.iter_mut().zip(&self.embed_w[i * d..(i + 1) * d]) {
+                    *o += v * w;
+                }
+            }
         }
-        out.chunks_exact(d)
-            .map(|row| row.iter().zip(&self.embed_b).map(|(v, b)| v + b).collect())
-            .collect()
+        out
     }
 }
 
