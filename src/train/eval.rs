@@ -3,6 +3,7 @@
 //! sets (on the features of [`super::inception`]) and a colour-statistics distance.
 
 use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -330,9 +331,10 @@ pub fn fid_rows(
     for &(i, j) in pairs {
         for group in ["seen", "unseen"] {
             for k in [i, j] {
-                if !cache.contains_key(&(k, group)) {
-                    let g = group_features(sets[k], k, group, split, cfg, net, progress)?;
-                    cache.insert((k, group), g);
+                if let Entry::Vacant(e) = cache.entry((k, group)) {
+                    e.insert(group_features(
+                        sets[k], k, group, split, cfg, net, progress,
+                    )?);
                 }
             }
             let (a, b) = (&cache[&(i, group)], &cache[&(j, group)]);
@@ -352,7 +354,11 @@ pub fn fid_rows(
                 n: [a.colour.len(), b.colour.len()],
                 fid,
                 kid: kid.map(|k| k.mean),
-                kid_std: kid.map(|k| k.std),
+                // Subsets as large as both samples are the samples themselves, every time: no
+                // spread to report.
+                kid_std: kid
+                    .filter(|k| k.subset_size < a.colour.len().max(b.colour.len()))
+                    .map(|k| k.std),
                 kid_subsets: kid.map(|k| [k.subsets, k.subset_size]),
                 colour_fd: metrics::fid(&a.colour, &b.colour).ok(),
             });
@@ -432,5 +438,72 @@ mod tests {
             assert!((f[k * 4 + 2] - 0.8).abs() < 1e-12);
             assert!(f[k * 4 + 3].abs() < 1e-6);
         }
+    }
+
+    fn flat_set(colours: &[(&str, [u8; 3], usize)]) -> UnlabelledSet {
+        let spec = ImageSpec {
+            width: 8,
+            height: 8,
+            modality: super::super::modality::Modality::RgbMarker,
+        };
+        UnlabelledSet {
+            spec,
+            trajectories: colours
+                .iter()
+                .enumerate()
+                .map(|(k, (ind, rgb, frames))| Trajectory {
+                    id: format!("t{k}"),
+                    indenter: ind.to_string(),
+                    // Frame f is the colour brightened by f (so the samples vary).
+                    pixels: (0..*frames)
+                        .flat_map(|f| rgb.map(|c| c.saturating_add(f as u8)).repeat(64))
+                        .collect(),
+                    frames: *frames,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn fid_rows_sample_each_set_per_group_and_say_when_inception_is_missing() {
+        let split = Split {
+            unseen: vec!["cone".into()],
+            excluded: Vec::new(),
+        };
+        let a = flat_set(&[("sphere", [100, 50, 50], 30), ("cone", [100, 50, 50], 3)]);
+        let b = flat_set(&[("sphere", [40, 120, 60], 30), ("cone", [40, 120, 60], 1)]);
+        let cfg = FidConfig {
+            max_images: 20,
+            ..FidConfig::default()
+        };
+        let rows = fid_rows(
+            &[("A", &a), ("B", &b)],
+            &[(0, 1), (0, 0)],
+            &split,
+            &cfg,
+            None,
+            false,
+        )
+        .unwrap();
+        // The unseen group has a single B frame: no row for it in A–B; A–A has both groups.
+        let groups: Vec<(&str, &str)> = rows
+            .iter()
+            .map(|r| (r.pair.as_str(), r.group.as_str()))
+            .collect();
+        assert_eq!(
+            groups,
+            [("A–B", "seen"), ("A–A", "seen"), ("A–A", "unseen")]
+        );
+        assert_eq!(rows[0].n, [20, 20]);
+        assert_eq!(rows[2].n, [3, 3]);
+        assert!(rows[0].colour_fd.unwrap() > 0.1, "{:?}", rows[0]);
+        assert!(
+            rows[1].colour_fd.unwrap() < 1e-9,
+            "the same sample: {:?}",
+            rows[1]
+        );
+        assert!(rows.iter().all(|r| r.fid.is_none() && r.kid.is_none()));
+        let notes = fid_notes(&Err("no weights at X".into()), &rows, &cfg);
+        assert_eq!(notes, ["FID and KID not computed: no weights at X"]);
     }
 }

@@ -221,15 +221,18 @@ enum Block {
     /// 17 → 8: 1×1→3×3/2 | 1×1→1×7→7×1→3×3/2 | max pool 3/2.
     D { b3: Vec<ConvBn>, b7: Vec<ConvBn> },
     /// 8 × 8: 1×1 | 1×1→(1×3, 3×1) | 1×1→3×3→(1×3, 3×1) | pool→1×1.
-    E {
-        b1: ConvBn,
-        b3: ConvBn,
-        b3_split: [ConvBn; 2],
-        dbl: Vec<ConvBn>,
-        dbl_split: [ConvBn; 2],
-        pool: ConvBn,
-        max_pool: bool,
-    },
+    E(Box<BlockE>),
+}
+
+#[derive(Debug, Clone)]
+struct BlockE {
+    b1: ConvBn,
+    b3: ConvBn,
+    b3_split: [ConvBn; 2],
+    dbl: Vec<ConvBn>,
+    dbl_split: [ConvBn; 2],
+    pool: ConvBn,
+    max_pool: bool,
 }
 
 impl Block {
@@ -274,15 +277,16 @@ impl Block {
                 ],
                 1,
             ),
-            Block::E {
-                b1,
-                b3,
-                b3_split,
-                dbl,
-                dbl_split,
-                pool,
-                max_pool: use_max,
-            } => {
+            Block::E(e) => {
+                let BlockE {
+                    b1,
+                    b3,
+                    b3_split,
+                    dbl,
+                    dbl_split,
+                    pool,
+                    max_pool: use_max,
+                } = e.as_ref();
                 let a = b3.forward(x.clone());
                 let b = chain(x.clone(), dbl);
                 let pooled = if *use_max {
@@ -733,7 +737,7 @@ impl Loader<'_> {
         let (t1, ct1) = conv("tower_1_mixed_conv_1", cd1, [3, 1], [1, 0])?;
         let (pool, cp) = conv("tower_2_conv", c, [1, 1], [0, 0])?;
         Ok((
-            Block::E {
+            Block::E(Box::new(BlockE {
                 b1,
                 b3,
                 b3_split: [s0, s1],
@@ -741,7 +745,7 @@ impl Loader<'_> {
                 dbl_split: [t0, t1],
                 pool,
                 max_pool,
-            },
+            })),
             c1 + cs0 + cs1 + ct0 + ct1 + cp,
         ))
     }

@@ -101,6 +101,7 @@ impl Table {
             for f in &self.fid {
                 let kid = match (f.kid, f.kid_std) {
                     (Some(k), Some(sd)) => format!("{k:.4} ± {sd:.4}"),
+                    (Some(k), None) => format!("{k:.4}"),
                     _ => "—".into(),
                 };
                 let subsets = f
