@@ -15,10 +15,14 @@ pub struct DemoArgs {
     /// Where the data, models and results go.
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
+    /// Inception weights for FID/KID (default: $RIG_INCEPTION_WEIGHTS, else
+    /// ~/.cache/rig/inception-fid.safetensors, written by scripts/fetch-inception).
+    #[arg(long, value_name = "FILE")]
+    pub inception: Option<PathBuf>,
 }
 
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
-    let table = demo::run(args.quick, &args.out)?;
+    let table = demo::run(args.quick, &args.out, args.inception.as_deref())?;
     println!("{}", table.markdown());
     for (modality, group, wins) in demo::beats_source_only(&table.rows) {
         let axes: Vec<&str> = ["Fx", "Fy", "Fz"]

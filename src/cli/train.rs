@@ -84,6 +84,10 @@ pub struct TranslateArgs {
     /// Iterations per epoch (default: one pass over the larger image set).
     #[arg(long)]
     pub steps_per_epoch: Option<usize>,
+    /// Inception weights for FID/KID (default: $RIG_INCEPTION_WEIGHTS, else
+    /// ~/.cache/rig/inception-fid.safetensors, written by scripts/fetch-inception).
+    #[arg(long, value_name = "FILE")]
+    pub inception: Option<PathBuf>,
     #[command(flatten)]
     pub common: Common,
 }
@@ -141,23 +145,26 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
             let source =
                 data::load_labelled(&a.source, &spec, progress)?.seen_only(&cfg.data.split);
             let target = data::load_unlabelled(&a.target, &spec, progress)?;
+            // Before training: a damaged or missing explicitly named weights file stops here.
+            let net = eval::load_inception(a.inception.as_deref(), cfg.fid.batch)?;
             let t = cyclegan::translate(&source, &target, &cfg.translate, &a.out, progress)?;
+            let (source_images, translated_images) = (source.images(), t.set.images());
             let mut table = report::Table {
-                rows: Vec::new(),
-                fid: Vec::new(),
+                fid: eval::fid_rows(
+                    &[
+                        ("I_s", &source_images),
+                        ("I_t", &target),
+                        ("Î_t", &translated_images),
+                    ],
+                    &[(0, 1), (2, 1), (0, 2)],
+                    &cfg.data.split,
+                    &cfg.fid,
+                    net.as_ref().ok(),
+                    progress,
+                )?,
+                ..Default::default()
             };
-            table.fid.extend(eval::fid_rows(
-                "I_s–I_t",
-                &source.images(),
-                &target,
-                &cfg.data.split,
-            ));
-            table.fid.extend(eval::fid_rows(
-                "Î_t–I_t",
-                &t.set.images(),
-                &target,
-                &cfg.data.split,
-            ));
+            table.fid_notes = eval::fid_notes(&net, &table.fid, &cfg.fid);
             table.write(&a.out)?;
             println!(
                 "translated {} source trajectories into {} (cycle loss {:.3} after {} iterations); samples in {}",
@@ -212,10 +219,7 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| args.model[0].join("eval"));
-    let mut table = report::Table {
-        rows: Vec::new(),
-        fid: Vec::new(),
-    };
+    let mut table = report::Table::default();
     for m in &args.model {
         table.rows.extend(eval::evaluate(
             m,

@@ -1,4 +1,5 @@
-//! The trainer's settings (`--config FILE`, TOML with `[data]`, `[translate]`, `[force]`).
+//! The trainer's settings (`--config FILE`, TOML with `[data]`, `[translate]`, `[force]`,
+//! `[fid]`).
 
 use std::path::Path;
 
@@ -7,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::cyclegan::TranslateConfig;
 use super::data::{ImageSpec, Split};
+use super::eval::FidConfig;
 use super::force::ForceConfig;
 use super::modality::Modality;
 
@@ -37,6 +39,7 @@ pub struct TrainerConfig {
     pub data: DataConfig,
     pub translate: TranslateConfig,
     pub force: ForceConfig,
+    pub fid: FidConfig,
 }
 
 impl TrainerConfig {

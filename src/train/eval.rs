@@ -1,14 +1,17 @@
 //! `rig eval`: a force model on the target sensor's data, in the paper's terms: MAE and R² per
 //! axis and the total-force MAE, for the seen and unseen indenter groups; FID/KID between image
-//! sets.
+//! sets (on the features of [`super::inception`]) and a colour-statistics distance.
 
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 use std::path::Path;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::batch::{Rng, Sequence};
 use super::data::{EvalSet, ImageSpec, Split, Trajectory, UnlabelledSet};
 use super::force::ForceModel;
+use super::inception::{self, Inception, WeightsError};
 use super::metrics::{self, AxisScores};
 use super::report::{FidRow, Row};
 
@@ -155,11 +158,57 @@ pub fn slug(s: &str) -> String {
 // ---------------------------------------------------------------------------------------------
 // FID / KID
 
-/// Image features for FID/KID. No pretrained Inception network can be fetched here, so the
-/// features are fixed image statistics: the mean colour of each cell of a 4 × 4 grid (48 values)
-/// and the luminance standard deviation of each cell (16). The distances compare our image sets
-/// with each other (I_s–I_t against Î_t–I_t); they are not comparable with the paper's numbers.
-pub fn features(frame: &[u8], spec: &ImageSpec) -> Vec<f64> {
+/// How FID and KID are computed between image sets (`[fid]` in the trainer config).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FidConfig {
+    /// Images drawn (a fixed sample) from each set and indenter group. Inception takes about
+    /// 0.25 s an image on one CPU core, so this bounds the time FID takes; published FIDs use
+    /// 50 000 images, and FID from fewer than 2048 (the feature size) is biased upward: compare
+    /// FIDs of equal sample sizes only.
+    pub max_images: usize,
+    /// KID: the number of random subsets and their size (the reference practice: 100 of 1000),
+    /// smaller when the sets are.
+    pub kid_subsets: usize,
+    pub kid_subset_size: usize,
+    /// Images per Inception forward pass.
+    pub batch: usize,
+}
+
+impl Default for FidConfig {
+    fn default() -> Self {
+        Self {
+            max_images: 1000,
+            kid_subsets: 100,
+            kid_subset_size: 1000,
+            batch: 16,
+        }
+    }
+}
+
+/// The Inception network for FID/KID, or why there is none. Weights at the default location
+/// that are missing make FID/KID unavailable (with a note in the table); weights named by a flag
+/// or `$RIG_INCEPTION_WEIGHTS` that are missing, and a damaged file anywhere, are an error.
+pub fn load_inception(
+    flag: Option<&Path>,
+    batch: usize,
+) -> anyhow::Result<Result<Inception, String>> {
+    let w = inception::weights_path(flag);
+    match Inception::load(&w.path, &super::force::device()) {
+        Ok(mut net) => {
+            net.batch = batch.max(1);
+            Ok(Ok(net))
+        }
+        Err(e @ WeightsError::Missing { .. }) if !w.explicit => Ok(Err(e.to_string())),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Colour statistics of an image (not Inception features): the mean colour of each cell of a
+/// 4 × 4 grid (48 values) and the luminance standard deviation of each cell (16). Their Fréchet
+/// distance (the table's "colour-stats FD") is cheap and sees the sensors' colour and shading
+/// differences; it is not the FID and is not comparable with published numbers.
+pub fn colour_features(frame: &[u8], spec: &ImageSpec) -> Vec<f64> {
     let (w, h) = (spec.width as usize, spec.height as usize);
     let g = 4;
     let mut sum = vec![[0f64; 3]; g * g];
@@ -193,17 +242,19 @@ pub fn features(frame: &[u8], spec: &ImageSpec) -> Vec<f64> {
     f
 }
 
-fn set_features(
-    trajs: &[Trajectory],
-    spec: &ImageSpec,
-    filter: &dyn Fn(&str) -> bool,
+/// A fixed sample (seeded) of at most `max` frames of the set's trajectories in `group`.
+fn sample<'a>(
+    set: &'a UnlabelledSet,
+    split: &Split,
+    group: &str,
     max: usize,
     seed: u64,
-) -> Vec<Vec<f64>> {
+) -> Vec<&'a [u8]> {
+    let trajs: &[Trajectory] = &set.trajectories;
     let all: Vec<(usize, usize)> = trajs
         .iter()
         .enumerate()
-        .filter(|(_, t)| filter(&t.indenter))
+        .filter(|(_, t)| split.group(&t.indenter) == group)
         .flat_map(|(i, t)| (0..t.frames).map(move |k| (i, k)))
         .collect();
     let mut idx: Vec<usize> = (0..all.len()).collect();
@@ -212,34 +263,129 @@ fn set_features(
     idx.iter()
         .map(|&j| {
             let (i, k) = all[j];
-            features(trajs[i].frame(k, spec), spec)
+            trajs[i].frame(k, &set.spec)
         })
         .collect()
 }
 
-/// FID and KID between two image sets, per indenter group present in both.
-pub fn fid_rows(pair: &str, a: &UnlabelledSet, b: &UnlabelledSet, split: &Split) -> Vec<FidRow> {
-    let mut rows = Vec::new();
-    for group in ["seen", "unseen"] {
-        let f = |ind: &str| split.group(ind) == group;
-        let fa = set_features(&a.trajectories, &a.spec, &f, 2000, 1);
-        let fb = set_features(&b.trajectories, &b.spec, &f, 2000, 2);
-        if fa.len() < 2 || fb.len() < 2 {
-            continue;
+/// The features of one set's sample in one group.
+struct GroupFeatures {
+    colour: Vec<Vec<f64>>,
+    inception: Option<Vec<Vec<f64>>>,
+}
+
+/// The sample of set `i` (`(name, set)`) in `group`, through the colour statistics and, with a
+/// network, through Inception (a progress bar per sample).
+fn group_features(
+    (name, set): (&str, &UnlabelledSet),
+    i: usize,
+    group: &str,
+    split: &Split,
+    cfg: &FidConfig,
+    net: Option<&Inception>,
+    progress: bool,
+) -> anyhow::Result<GroupFeatures> {
+    let frames = sample(set, split, group, cfg.max_images, 1 + i as u64);
+    let colour = frames
+        .iter()
+        .map(|f| colour_features(f, &set.spec))
+        .collect();
+    let inception = match net {
+        Some(net) if frames.len() >= 2 => {
+            let bar = super::progress_bar(progress, frames.len() as u64, "inception");
+            bar.set_message(format!("{name} {group}"));
+            let f = net
+                .features(
+                    &frames,
+                    set.spec.width as usize,
+                    set.spec.height as usize,
+                    |n| bar.inc(n as u64),
+                )
+                .map_err(|e| anyhow::anyhow!("Inception features of {name}: {e}"))?;
+            bar.finish_and_clear();
+            Some(
+                f.into_iter()
+                    .map(|v| v.into_iter().map(f64::from).collect())
+                    .collect(),
+            )
         }
-        let fid = metrics::fid(&fa, &fb).unwrap_or(f64::NAN);
-        let size = fa.len().min(fb.len()).min(200);
-        let kid = metrics::kid(&fa, &fb, 10, size, 3)
-            .map(|k| k.0)
-            .unwrap_or(f64::NAN);
-        rows.push(FidRow {
-            group: group.into(),
-            pair: pair.into(),
-            fid,
-            kid,
-        });
+        _ => None,
+    };
+    Ok(GroupFeatures { colour, inception })
+}
+
+/// FID, KID and the colour-statistics distance between named image sets: one row per pair
+/// (`sets[i]`, `sets[j]`, named "i–j") and indenter group present in both. Each set's sample is
+/// passed through Inception once, however many pairs it is in. Without `net` the FID and KID
+/// are left empty.
+pub fn fid_rows(
+    sets: &[(&str, &UnlabelledSet)],
+    pairs: &[(usize, usize)],
+    split: &Split,
+    cfg: &FidConfig,
+    net: Option<&Inception>,
+    progress: bool,
+) -> anyhow::Result<Vec<FidRow>> {
+    let mut cache: HashMap<(usize, &str), GroupFeatures> = HashMap::new();
+    let mut rows = Vec::new();
+    for &(i, j) in pairs {
+        for group in ["seen", "unseen"] {
+            for k in [i, j] {
+                if let Entry::Vacant(e) = cache.entry((k, group)) {
+                    e.insert(group_features(
+                        sets[k], k, group, split, cfg, net, progress,
+                    )?);
+                }
+            }
+            let (a, b) = (&cache[&(i, group)], &cache[&(j, group)]);
+            if a.colour.len() < 2 || b.colour.len() < 2 {
+                continue;
+            }
+            let (fid, kid) = match (&a.inception, &b.inception) {
+                (Some(fa), Some(fb)) => (
+                    metrics::fid(fa, fb).ok(),
+                    metrics::kid(fa, fb, cfg.kid_subsets, cfg.kid_subset_size, 3).ok(),
+                ),
+                _ => (None, None),
+            };
+            rows.push(FidRow {
+                group: group.into(),
+                pair: format!("{}–{}", sets[i].0, sets[j].0),
+                n: [a.colour.len(), b.colour.len()],
+                fid,
+                kid: kid.map(|k| k.mean),
+                // Subsets as large as both samples are the samples themselves, every time: no
+                // spread to report.
+                kid_std: kid
+                    .filter(|k| k.subset_size < a.colour.len().max(b.colour.len()))
+                    .map(|k| k.std),
+                kid_subsets: kid.map(|k| [k.subsets, k.subset_size]),
+                colour_fd: metrics::fid(&a.colour, &b.colour).ok(),
+            });
+        }
     }
-    rows
+    Ok(rows)
+}
+
+/// What the FID/KID table needs said: that Inception was not available, or that KID's subsets
+/// are smaller than the reference 1000.
+pub fn fid_notes(net: &Result<Inception, String>, rows: &[FidRow], cfg: &FidConfig) -> Vec<String> {
+    let mut notes = Vec::new();
+    if let Err(e) = net {
+        notes.push(format!("FID and KID not computed: {e}"));
+    }
+    if let Some(m) = rows
+        .iter()
+        .filter_map(|r| r.kid_subsets.map(|s| s[1]))
+        .filter(|&m| m < cfg.kid_subset_size)
+        .min()
+    {
+        notes.push(format!(
+            "KID subsets are smaller than the reference {} (as small as {m}) because the image samples are (at most {} per set and group); FID from fewer than 2048 images is biased upward, so compare rows with equal n.",
+            cfg.kid_subset_size, cfg.max_images
+        ));
+    }
+    notes
 }
 
 #[cfg(test)]
@@ -284,7 +430,7 @@ mod tests {
             modality: super::super::modality::Modality::RgbMarker,
         };
         let px: Vec<u8> = [51u8, 102, 204].repeat(64);
-        let f = features(&px, &spec);
+        let f = colour_features(&px, &spec);
         assert_eq!(f.len(), 64);
         for k in 0..16 {
             assert!((f[k * 4] - 0.2).abs() < 1e-12);
@@ -292,5 +438,72 @@ mod tests {
             assert!((f[k * 4 + 2] - 0.8).abs() < 1e-12);
             assert!(f[k * 4 + 3].abs() < 1e-6);
         }
+    }
+
+    fn flat_set(colours: &[(&str, [u8; 3], usize)]) -> UnlabelledSet {
+        let spec = ImageSpec {
+            width: 8,
+            height: 8,
+            modality: super::super::modality::Modality::RgbMarker,
+        };
+        UnlabelledSet {
+            spec,
+            trajectories: colours
+                .iter()
+                .enumerate()
+                .map(|(k, (ind, rgb, frames))| Trajectory {
+                    id: format!("t{k}"),
+                    indenter: ind.to_string(),
+                    // Frame f is the colour brightened by f (so the samples vary).
+                    pixels: (0..*frames)
+                        .flat_map(|f| rgb.map(|c| c.saturating_add(f as u8)).repeat(64))
+                        .collect(),
+                    frames: *frames,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn fid_rows_sample_each_set_per_group_and_say_when_inception_is_missing() {
+        let split = Split {
+            unseen: vec!["cone".into()],
+            excluded: Vec::new(),
+        };
+        let a = flat_set(&[("sphere", [100, 50, 50], 30), ("cone", [100, 50, 50], 3)]);
+        let b = flat_set(&[("sphere", [40, 120, 60], 30), ("cone", [40, 120, 60], 1)]);
+        let cfg = FidConfig {
+            max_images: 20,
+            ..FidConfig::default()
+        };
+        let rows = fid_rows(
+            &[("A", &a), ("B", &b)],
+            &[(0, 1), (0, 0)],
+            &split,
+            &cfg,
+            None,
+            false,
+        )
+        .unwrap();
+        // The unseen group has a single B frame: no row for it in A–B; A–A has both groups.
+        let groups: Vec<(&str, &str)> = rows
+            .iter()
+            .map(|r| (r.pair.as_str(), r.group.as_str()))
+            .collect();
+        assert_eq!(
+            groups,
+            [("A–B", "seen"), ("A–A", "seen"), ("A–A", "unseen")]
+        );
+        assert_eq!(rows[0].n, [20, 20]);
+        assert_eq!(rows[2].n, [3, 3]);
+        assert!(rows[0].colour_fd.unwrap() > 0.1, "{:?}", rows[0]);
+        assert!(
+            rows[1].colour_fd.unwrap() < 1e-9,
+            "the same sample: {:?}",
+            rows[1]
+        );
+        assert!(rows.iter().all(|r| r.fid.is_none() && r.kid.is_none()));
+        let notes = fid_notes(&Err("no weights at X".into()), &rows, &cfg);
+        assert_eq!(notes, ["FID and KID not computed: no weights at X"]);
     }
 }

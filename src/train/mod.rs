@@ -10,6 +10,7 @@
 //!   γ-weighted L1).
 //! - [`eval`], [`metrics`], [`report`]: what `rig eval` computes (MAE, R², total-force MAE,
 //!   FID/KID; Markdown, CSV and plots).
+//! - [`inception`]: the FID Inception-v3 whose features FID and KID are computed on.
 //! - [`demo`]: the whole story of `rig demo` on the simulated rig.
 //!
 //! The commands themselves are in `crate::cli::train` and `crate::cli::demo`.
@@ -21,6 +22,7 @@ pub mod data;
 pub mod demo;
 pub mod eval;
 pub mod force;
+pub mod inception;
 pub mod metrics;
 pub mod modality;
 pub mod nn;

@@ -24,16 +24,28 @@ pub struct Row {
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct FidRow {
     pub group: String,
-    /// Which two image sets: `I_s–I_t` (before translation) or `Î_t–I_t` (after).
+    /// Which two image sets: `I_s–I_t` (before translation), `Î_t–I_t` (after), `I_s–Î_t`.
     pub pair: String,
-    pub fid: f64,
-    pub kid: f64,
+    /// Images sampled from each set.
+    pub n: [usize; 2],
+    /// FID on Inception-v3 features (Heusel et al. 2017); empty without the Inception weights.
+    pub fid: Option<f64>,
+    /// KID (Bińkowski et al. 2018): mean and standard deviation over subsets.
+    pub kid: Option<f64>,
+    pub kid_std: Option<f64>,
+    /// [how many subsets, of what size].
+    pub kid_subsets: Option<[usize; 2]>,
+    /// Fréchet distance of colour statistics (`eval::colour_features`): not an FID.
+    pub colour_fd: Option<f64>,
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 pub struct Table {
     pub rows: Vec<Row>,
     pub fid: Vec<FidRow>,
+    /// Why FID/KID are missing, or what to keep in mind reading them.
+    #[serde(default)]
+    pub fid_notes: Vec<String>,
 }
 
 fn num(v: f64) -> String {
@@ -81,15 +93,35 @@ impl Table {
             if !s.is_empty() {
                 s.push('\n');
             }
-            s.push_str("| Images | Group | FID | KID |\n| --- | --- | ---: | ---: |\n");
+            s.push_str(
+                "| Images | Group | n | FID | KID | KID subsets | Colour-stats FD |\n\
+                 | --- | --- | --- | ---: | ---: | ---: | ---: |\n",
+            );
+            let opt = |v: Option<f64>| num(v.unwrap_or(f64::NAN));
             for f in &self.fid {
+                let kid = match (f.kid, f.kid_std) {
+                    (Some(k), Some(sd)) => format!("{k:.4} ± {sd:.4}"),
+                    (Some(k), None) => format!("{k:.4}"),
+                    _ => "—".into(),
+                };
+                let subsets = f
+                    .kid_subsets
+                    .map(|[n, m]| format!("{n} × {m}"))
+                    .unwrap_or_else(|| "—".into());
                 s.push_str(&format!(
-                    "| {} | {} | {} | {} |\n",
+                    "| {} | {} | {} / {} | {} | {} | {} | {} |\n",
                     f.pair,
                     f.group,
-                    num(f.fid),
-                    num(f.kid)
+                    f.n[0],
+                    f.n[1],
+                    opt(f.fid),
+                    kid,
+                    subsets,
+                    opt(f.colour_fd)
                 ));
+            }
+            for n in &self.fid_notes {
+                s.push_str(&format!("\n{n}\n"));
             }
         }
         s
@@ -213,12 +245,29 @@ mod tests {
                     n: 4,
                 },
             ],
-            fid: vec![FidRow {
-                group: "seen".into(),
-                pair: "I_s–I_t".into(),
-                fid: 12.5,
-                kid: 0.01,
-            }],
+            fid_notes: Vec::new(),
+            fid: vec![
+                FidRow {
+                    group: "seen".into(),
+                    pair: "I_s–I_t".into(),
+                    n: [64, 60],
+                    fid: Some(12.5),
+                    kid: Some(0.01),
+                    kid_std: Some(0.002),
+                    kid_subsets: Some([100, 60]),
+                    colour_fd: Some(0.25),
+                },
+                FidRow {
+                    group: "unseen".into(),
+                    pair: "I_s–I_t".into(),
+                    n: [8, 9],
+                    fid: None,
+                    kid: None,
+                    kid_std: None,
+                    kid_subsets: None,
+                    colour_fd: Some(1.5),
+                },
+            ],
         }
     }
 
@@ -226,7 +275,16 @@ mod tests {
     fn markdown_and_csv_have_the_papers_columns() {
         let md = table().markdown();
         assert!(md.contains("| TransForce | R+M | seen | 0.100 | 0.200 | 0.300 | 0.250 | 0.900 | 0.800 | — | 10 |"), "{md}");
-        assert!(md.contains("| I_s–I_t | seen | 12.500 | 0.010 |"), "{md}");
+        assert!(
+            md.contains(
+                "| I_s–I_t | seen | 64 / 60 | 12.500 | 0.0100 ± 0.0020 | 100 × 60 | 0.250 |"
+            ),
+            "{md}"
+        );
+        assert!(
+            md.contains("| I_s–I_t | unseen | 8 / 9 | — | — | — | 1.500 |"),
+            "{md}"
+        );
         let csv = table().csv();
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(

@@ -20,6 +20,7 @@ mod fault_drills;
 mod ft_daq;
 mod ft_netft;
 mod ft_serial;
+mod inception;
 mod live_view;
 mod mcap_python;
 mod plan_cli;
