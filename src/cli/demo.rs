@@ -19,10 +19,36 @@ pub struct DemoArgs {
     /// ~/.cache/rig/inception-fid.safetensors, written by scripts/fetch-inception).
     #[arg(long, value_name = "FILE")]
     pub inception: Option<PathBuf>,
+    /// The target sensor's rig config (default: the built-in simulated target sensor,
+    /// rig-configs/sim-target.toml), e.g. rig-configs/sim-third.toml to check that the demo's
+    /// settings carry over to a sensor they were not chosen on. It must be a simulated rig
+    /// (the demo records on it); use a fresh --out, since recorded data are reused.
+    #[arg(long, value_name = "FILE")]
+    pub target: Option<PathBuf>,
 }
 
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
-    let table = demo::run(args.quick, &args.out, args.inception.as_deref())?;
+    let target = match &args.target {
+        Some(path) => {
+            let c = rig_core::config::RigConfig::load(path)
+                .map_err(|e| anyhow::anyhow!("--target {}: {e}", path.display()))?;
+            if !c.robot.simulated {
+                anyhow::bail!(
+                    "--target {}: the demo records on the simulated rig; this config drives a \
+                     real robot (robot.simulated = false)",
+                    path.display()
+                );
+            }
+            Some(c)
+        }
+        None => None,
+    };
+    let table = demo::run(
+        args.quick,
+        &args.out,
+        args.inception.as_deref(),
+        target.as_ref(),
+    )?;
     println!("{}", table.markdown());
     for (modality, group, wins) in demo::beats_source_only(&table.rows) {
         let axes: Vec<&str> = ["Fx", "Fy", "Fz"]

@@ -170,8 +170,14 @@ fn collect(config: &RigConfig, indenter: &str, out: &Path, progress: bool) -> an
 
 /// Run the demo; returns the table (also written to `<out>/results.*`). `inception` names the
 /// Inception weights for FID/KID (default: [`super::inception::weights_path`]); without them at
-/// the default location the table says so and leaves FID/KID empty.
-pub fn run(quick: bool, out: &Path, inception: Option<&Path>) -> anyhow::Result<Table> {
+/// the default location the table says so and leaves FID/KID empty. `target` replaces the
+/// built-in simulated target sensor (its plan is set to the demo's like the built-in one's).
+pub fn run(
+    quick: bool,
+    out: &Path,
+    inception: Option<&Path>,
+    target: Option<&RigConfig>,
+) -> anyhow::Result<Table> {
     let progress = std::io::stderr().is_terminal();
     let plan = DemoPlan::new(quick);
     // Before an hour of work: a damaged or missing explicitly named weights file stops here.
@@ -182,7 +188,7 @@ pub fn run(quick: bool, out: &Path, inception: Option<&Path>) -> anyhow::Result<
         ..Split::default()
     };
     let source_cfg = demo_config(RigConfig::sim_source(), &plan);
-    let target_cfg = demo_config(RigConfig::sim_target(), &plan);
+    let target_cfg = demo_config(target.cloned().unwrap_or_else(RigConfig::sim_target), &plan);
     let (src_dir, tgt_dir) = (out.join("data/source"), out.join("data/target"));
     let indenters: Vec<&str> = plan.seen.iter().chain(&plan.unseen).copied().collect();
     eprintln!(
