@@ -294,38 +294,49 @@ impl Camera {
         let rt = tokio::runtime::Runtime::new()?;
         rt.block_on(async {
             let clock = rig_core::clock::Clock::system();
-            let mut cam = open_v4l2(c, &clock)?;
-            let mut n = 0u64;
-            loop {
-                if self.frames.is_some_and(|max| n >= max) {
-                    return Ok(());
-                }
-                let frame = tokio::select! {
-                    f = cam.next_frame() => f,
-                    _ = stopped(&feed) => return Ok(()),
-                };
-                match frame {
-                    Ok(frame) => {
-                        n += 1;
-                        feed.offer(Input {
-                            traj: 0,
-                            traj_id: None,
-                            stride: None,
-                            marker: None,
-                            seq: frame.sequence as i64,
-                            t_ns: frame.capture_t_ns.unwrap_or(frame.received_t_ns),
-                            image: FrameImage::Camera(Box::new(frame)),
-                            handed_at: Instant::now(),
-                        });
-                    }
-                    Err(crate::camera::CameraError::BadFrame(why)) => {
-                        tracing::warn!("camera: bad frame ({why}); skipped");
-                    }
-                    Err(crate::camera::CameraError::Ended) => return Ok(()),
-                    Err(e) => return Err(anyhow::Error::from(e)),
-                }
-            }
+            let cam = open_v4l2(c, &clock)?;
+            read_camera(cam, self.frames, &feed).await
         })
+    }
+}
+
+/// Reads `cam` into `feed` until it ends, `frames` have been read, or the feed asks to stop:
+/// the camera half of [`Camera::run`], for any [`crate::camera::FrameSource`] (tests drive it
+/// with a V4L2 source on a scripted device layer).
+pub async fn read_camera(
+    mut cam: Box<dyn crate::camera::FrameSource>,
+    frames: Option<u64>,
+    feed: &Feed,
+) -> anyhow::Result<()> {
+    let mut n = 0u64;
+    loop {
+        if frames.is_some_and(|max| n >= max) {
+            return Ok(());
+        }
+        let frame = tokio::select! {
+            f = cam.next_frame() => f,
+            _ = stopped(feed) => return Ok(()),
+        };
+        match frame {
+            Ok(frame) => {
+                n += 1;
+                feed.offer(Input {
+                    traj: 0,
+                    traj_id: None,
+                    stride: None,
+                    marker: None,
+                    seq: frame.sequence as i64,
+                    t_ns: frame.capture_t_ns.unwrap_or(frame.received_t_ns),
+                    image: FrameImage::Camera(Box::new(frame)),
+                    handed_at: Instant::now(),
+                });
+            }
+            Err(crate::camera::CameraError::BadFrame(why)) => {
+                tracing::warn!("camera: bad frame ({why}); skipped");
+            }
+            Err(crate::camera::CameraError::Ended) => return Ok(()),
+            Err(e) => return Err(anyhow::Error::from(e)),
+        }
     }
 }
 

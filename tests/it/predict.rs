@@ -550,3 +550,149 @@ fn ctrl_c_ends_a_replay_with_its_summary_and_a_complete_mcap_file() {
         .unwrap();
     assert_eq!(msgs.len() as u64, processed);
 }
+
+/// A V4L2 device delivering scripted YUYV frames at a camera's pace (one every `period`).
+struct PacedCamera {
+    frames: std::collections::VecDeque<rig::camera::v4l2::RawFrame>,
+    period: Duration,
+    next: Option<std::time::Instant>,
+}
+
+impl rig::camera::v4l2::DeviceLayer for PacedCamera {
+    fn modes(&mut self) -> std::io::Result<Vec<rig::camera::v4l2::OfferedMode>> {
+        Ok(vec![rig::camera::v4l2::OfferedMode {
+            pixel: rig::camera::PixelFormat::Yuyv,
+            width: 320,
+            height: 240,
+            fps: vec![25.0],
+        }])
+    }
+    fn configure(
+        &mut self,
+        f: &rig::camera::FrameFormat,
+    ) -> std::io::Result<rig::camera::FrameFormat> {
+        Ok(*f)
+    }
+    fn start(&mut self, _buffers: u32) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn dequeue(&mut self) -> std::io::Result<Option<rig::camera::v4l2::RawFrame>> {
+        let due = *self.next.get_or_insert_with(std::time::Instant::now);
+        if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        self.next = Some(due + self.period);
+        Ok(self.frames.pop_front())
+    }
+}
+
+/// 320 × 240 YUYV frames of a smooth pattern that changes from frame to frame.
+fn yuyv_frames(n: usize) -> Vec<rig::camera::v4l2::RawFrame> {
+    (0..n)
+        .map(|k| {
+            let mut data = Vec::with_capacity(320 * 240 * 2);
+            for y in 0..240usize {
+                for x in (0..320usize).step_by(2) {
+                    let luma = |x: usize| (16 + (x / 2 + y + 7 * k) % 200) as u8;
+                    data.extend_from_slice(&[
+                        luma(x),
+                        (118 + (k % 20)) as u8,
+                        luma(x + 1),
+                        (140 - (x % 32)) as u8,
+                    ]);
+                }
+            }
+            rig::camera::v4l2::RawFrame {
+                data,
+                sequence: k as u32,
+                timestamp_ns: 1_000_000_000_000 + k as u64 * 40_000_000,
+                error: false,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn a_v4l2_camera_is_read_at_its_rate_and_every_frame_is_estimated_as_the_library_would() {
+    let f = fixture();
+    let n = 30;
+    let raw = yuyv_frames(n);
+    let opts = || PredictorOptions {
+        tare_frames: 4,
+        ..PredictorOptions::default()
+    };
+    let device = PacedCamera {
+        frames: raw.clone().into(),
+        period: Duration::from_millis(40),
+        next: None,
+    };
+    let source = move |feed: Arc<Feed>| -> anyhow::Result<()> {
+        let rt = tokio::runtime::Runtime::new()?;
+        rt.block_on(async {
+            let cam = rig::camera::v4l2::V4l2Source::open(
+                device,
+                "/dev/fake-gelsight",
+                rig_core::clock::Clock::system(),
+                &rig::camera::v4l2::Request::new(320, 240, 25.0),
+                &rig::camera::v4l2::V4l2Options::default(),
+            )?;
+            rig::predict::source::read_camera(Box::new(cam), Some(n as u64), &feed).await
+        })
+    };
+    let predictor = Predictor::load(&f.model, opts()).unwrap();
+    let s = session::run(predictor, Arc::new(Feed::new(false)), source, &mut quiet()).unwrap();
+    eprintln!("{}", s.report());
+    // At the camera's rate nothing is skipped; the first 4 frames make the tare.
+    assert_eq!(s.frames, n as u64, "{}", s.report());
+    assert_eq!(s.skipped, 0, "{}", s.report());
+    assert_eq!(s.tare_frames, 4);
+    assert_eq!(s.estimates.len(), n - 4);
+    // Each estimate carries its frame's sequence number and a capture time on the rig's clock,
+    // in order.
+    for (i, (_, seq, e)) in s.estimates.iter().enumerate() {
+        assert_eq!(*seq, (i + 4) as i64);
+        if i > 0 {
+            assert!(e.t_ns > s.estimates[i - 1].2.t_ns);
+        }
+    }
+
+    // The library fed the same frames, decoded from YUYV, gives the same forces.
+    let mut p = Predictor::load(&f.model, opts()).unwrap();
+    let format = rig::camera::FrameFormat {
+        pixel: rig::camera::PixelFormat::Yuyv,
+        width: 320,
+        height: 240,
+        fps: 25.0,
+    };
+    let mut want = Vec::new();
+    for (k, r) in raw.iter().enumerate() {
+        let frame = rig::camera::Frame {
+            sequence: k as u64,
+            device_ts_ns: r.timestamp_ns,
+            capture_t_ns: None,
+            received_t_ns: 0,
+            dropped_before: 0,
+            format,
+            data: r.data.clone(),
+            truth: None,
+        };
+        if let Some(e) = p.push(&frame.to_rgb().unwrap(), k as u64).unwrap() {
+            want.push(e.force_n);
+        }
+    }
+    assert_eq!(want.len(), s.estimates.len());
+    for (w, (_, _, e)) in want.iter().zip(&s.estimates) {
+        for a in 0..3 {
+            assert!(
+                (w[a] - e.force_n[a]).abs() < 1e-9,
+                "{w:?} vs {:?}",
+                e.force_n
+            );
+        }
+    }
+    // The pattern changes frame to frame, and so do the estimates.
+    assert!(
+        want.windows(2).any(|p| p[0] != p[1]),
+        "every estimate the same: {want:?}"
+    );
+}
