@@ -8,10 +8,12 @@
 //!   affine map per channel, `y = γ (x − μ) / √(σ² + ε) + β`, so with `x = W * v + b` it is the
 //!   convolution with weights `W · s` and bias `(b − μ) s + β`, `s = γ / √(σ² + ε)` (Ioffe and
 //!   Szegedy 2015, eq. in Alg. 2). One pass over the activations instead of three.
-//! - **Channels-last activations throughout.** A 3 × 3 convolution is then one matrix product
+//! - **Channels-last activations throughout.** A convolution is then a matrix product
 //!   `[pixels, k·k·c_in] × [k·k·c_in, c_out]` whose left side (im2col) is built from runs of
-//!   `c_in` contiguous floats, and a 1 × 1 convolution of stride 1 multiplies the activation
-//!   itself. The weights are laid out for that product once, at load.
+//!   `c_in` contiguous floats; a 1 × 1 convolution of stride 1 multiplies the activation
+//!   itself, and a 3 × 3 one of stride 1 needs no im2col at all (three products straight on a
+//!   zero-bordered copy of the input, see `Conv::run_3x3`). The weights are laid out for that
+//!   product once, at load.
 //! - **Fused epilogue.** Bias, residual and ReLU in the pass that reads the product.
 //! - **Buffers reused** across layers and frames of one call.
 //!
@@ -150,6 +152,90 @@ impl Conv {
         })
     }
 
+    /// A 3 × 3 convolution of stride 1 and padding 1 on one frame, without im2col. The input
+    /// is copied once into a zero-bordered buffer `(h + 2) × (w + 2)`; the output is computed on
+    /// the same padded width, `h × (w + 2)` (two columns a row are discarded). Then for kernel
+    /// row `ky` the three taps of output pixel `m` are the `3 · c_in` floats starting at padded
+    /// pixel `m + ky (w + 2)`, so each kernel row is one product whose left side is the padded
+    /// buffer itself read with a row stride of `c_in` (rows overlap), accumulated over `ky`.
+    fn run_3x3(&self, x: &Map, residual: Option<&Map>, relu: bool, pad: &mut Vec<f32>) -> Map {
+        let (h, w, c) = (x.h, x.w, x.c);
+        if let Some(r) = residual {
+            assert_eq!(r.v.len(), h * w * self.c_out, "residual of another shape");
+        }
+        let wp = w + 2;
+        // Two spare pixels: the discarded columns of the last row read past the border.
+        let len = ((h + 2) * wp + 2) * c;
+        pad.clear();
+        pad.resize(len, 0.0);
+        for y in 0..h {
+            let dst = ((y + 1) * wp + 1) * c;
+            pad[dst..dst + w * c].copy_from_slice(&x.v[y * w * c..(y + 1) * w * c]);
+        }
+        let n = self.c_out;
+        let m = h * wp;
+        let kr = 3 * c;
+        let mut wide = vec![0f32; m * n];
+        assert!(self.w.len() == 3 * kr * n);
+        for ky in 0..3 {
+            let lhs = &pad[ky * wp * c..];
+            // The last row read: pixel m − 1 + ky·wp, 3 taps.
+            assert!(lhs.len() >= (m - 1) * c + kr);
+            let rhs = &self.w[ky * kr * n..(ky + 1) * kr * n];
+            // SAFETY: dst m × n (row-major); lhs m × kr with row stride c (overlapping rows,
+            // read only; length asserted); rhs kr × n row-major; dst does not overlap either.
+            unsafe {
+                gemm::gemm(
+                    m,
+                    n,
+                    kr,
+                    wide.as_mut_ptr(),
+                    1,
+                    n as isize,
+                    ky > 0,
+                    lhs.as_ptr(),
+                    1,
+                    c as isize,
+                    rhs.as_ptr(),
+                    1,
+                    n as isize,
+                    1.0,
+                    1.0,
+                    false,
+                    false,
+                    false,
+                    Parallelism::None,
+                );
+            }
+        }
+        let mut out = Vec::with_capacity(h * w * n);
+        for y in 0..h {
+            for xx in 0..w {
+                let row = &wide[(y * wp + xx) * n..][..n];
+                let p = (y * w + xx) * n;
+                match residual {
+                    Some(r) => out.extend(row.iter().zip(&self.b).zip(&r.v[p..p + n]).map(
+                        |((v, b), r)| {
+                            let s = v + b + r;
+                            if relu { s.max(0.0) } else { s }
+                        },
+                    )),
+                    None => out.extend(row.iter().zip(&self.b).map(|(v, b)| {
+                        let s = v + b;
+                        if relu { s.max(0.0) } else { s }
+                    })),
+                }
+            }
+        }
+        Map {
+            n: 1,
+            h,
+            w,
+            c: n,
+            v: out,
+        }
+    }
+
     fn out_size(&self, h: usize, w: usize) -> (usize, usize) {
         (
             (h + 2 * self.pad - self.k) / self.stride + 1,
@@ -160,6 +246,9 @@ impl Conv {
     /// `relu?(conv(x) + residual?)`. `col` is scratch for the im2col matrix.
     fn run(&self, x: &Map, residual: Option<&Map>, relu: bool, col: &mut Vec<f32>) -> Map {
         debug_assert_eq!(x.c, self.c_in);
+        if self.k == 3 && self.stride == 1 && self.pad == 1 && x.n == 1 {
+            return self.run_3x3(x, residual, relu, col);
+        }
         let (oh, ow) = self.out_size(x.h, x.w);
         let m = x.n * oh * ow;
         let kk = self.k * self.k * self.c_in;
