@@ -237,6 +237,14 @@ fn initial_network(shape: &ForceShape, dev: &Device, seed: u64) -> (Device, Forc
     })
 }
 
+/// The optimiser `train` steps with (its state starts empty).
+fn new_optimizer(kind: Optimizer) -> ModuleOptimizer {
+    match kind {
+        Optimizer::Adam => AdamConfig::new().init(),
+        Optimizer::Sgd => SgdConfig::new().init(),
+    }
+}
+
 /// The device the trainer computes on: CUDA with the `gpu` feature, else the flex CPU backend.
 pub fn device() -> Device {
     #[cfg(feature = "gpu")]
@@ -321,10 +329,7 @@ pub fn train(
     let dev = device();
     let shape = shape_for(cfg, &spec);
     let (adev, mut net) = initial_network(&shape, &dev, cfg.seed);
-    let mut optim: ModuleOptimizer = match cfg.optimizer {
-        Optimizer::Adam => AdamConfig::new().init(),
-        Optimizer::Sgd => SgdConfig::new().init(),
-    };
+    let mut optim = new_optimizer(cfg.optimizer);
     let mut info = ModelInfo {
         format: MODEL_FORMAT.into(),
         method: method.into(),
@@ -485,10 +490,7 @@ pub fn step_speed(cfg: &ForceConfig, spec: ImageSpec, steps: usize) -> StepSpeed
     let dev = device();
     let shape = shape_for(cfg, &spec);
     let (adev, mut net) = initial_network(&shape, &dev, cfg.seed);
-    let mut optim: ModuleOptimizer = match cfg.optimizer {
-        Optimizer::Adam => AdamConfig::new().init(),
-        Optimizer::Sgd => SgdConfig::new().init(),
-    };
+    let mut optim = new_optimizer(cfg.optimizer);
     let (b, t) = (cfg.batch.max(1), cfg.seq_len.max(1));
     let (w, h) = (spec.width as usize, spec.height as usize);
     let mut rng = Rng(cfg.seed);

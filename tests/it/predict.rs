@@ -409,6 +409,13 @@ fn bad_input_is_refused_with_a_message_that_says_what_to_do() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// Frames of the fixture's dataset that `rig eval` (and so a replay) scores.
+fn dataset_frames(f: &Fixture) -> usize {
+    let model = ForceModel::load(&f.model).unwrap();
+    let set = data::load_eval(&f.data, &model.spec(), false).unwrap();
+    set.trajectories.iter().map(|t| t.frames).sum()
+}
+
 /// Splits a CSV line of `rig predict --csv` into its fields.
 fn csv_fields(line: &str) -> Vec<&str> {
     line.split(',').collect()
@@ -440,11 +447,7 @@ fn the_command_line_writes_the_same_estimates_as_csv_json_lines_and_mcap() {
     let mut lines = csv.lines();
     assert_eq!(lines.next(), Some(rig::predict::output::CSV_HEADER));
     let rows: Vec<Vec<&str>> = lines.map(csv_fields).collect();
-    let frames: usize = {
-        let model = ForceModel::load(&f.model).unwrap();
-        let set = data::load_eval(&f.data, &model.spec(), false).unwrap();
-        set.trajectories.iter().map(|t| t.frames).sum()
-    };
+    let frames = dataset_frames(f);
     assert_eq!(rows.len(), frames, "{csv}");
     let num = |s: &str| {
         s.parse::<f64>()
@@ -533,11 +536,7 @@ fn ctrl_c_ends_a_replay_with_its_summary_and_a_complete_mcap_file() {
     let summary: serde_json::Value =
         serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
     let processed = summary["processed"].as_u64().unwrap();
-    let total: usize = {
-        let model = ForceModel::load(&f.model).unwrap();
-        let set = data::load_eval(&f.data, &model.spec(), false).unwrap();
-        set.trajectories.iter().map(|t| t.frames).sum()
-    };
+    let total = dataset_frames(f);
     assert!(
         (processed as usize) < total,
         "stopped early: {processed} of {total}"

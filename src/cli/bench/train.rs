@@ -213,11 +213,7 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
     if args.speed {
         return run_speed(args);
     }
-    let (w, h) = args
-        .size
-        .split_once('x')
-        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-        .context("--size must be WIDTHxHEIGHT")?;
+    let (w, h) = parse_size(&args.size)?;
     let spec = ImageSpec {
         width: w,
         height: h,

@@ -208,31 +208,40 @@ impl Conv {
                 );
             }
         }
+        // The valid columns of each row, then the epilogue.
         let mut out = Vec::with_capacity(h * w * n);
         for y in 0..h {
-            for xx in 0..w {
-                let row = &wide[(y * wp + xx) * n..][..n];
-                let p = (y * w + xx) * n;
-                match residual {
-                    Some(r) => out.extend(row.iter().zip(&self.b).zip(&r.v[p..p + n]).map(
-                        |((v, b), r)| {
-                            let s = v + b + r;
-                            if relu { s.max(0.0) } else { s }
-                        },
-                    )),
-                    None => out.extend(row.iter().zip(&self.b).map(|(v, b)| {
-                        let s = v + b;
-                        if relu { s.max(0.0) } else { s }
-                    })),
-                }
-            }
+            out.extend_from_slice(&wide[y * wp * n..(y * wp + w) * n]);
         }
+        self.finish(&mut out, residual.map(|r| r.v.as_slice()), relu);
         Map {
             n: 1,
             h,
             w,
             c: n,
             v: out,
+        }
+    }
+
+    /// The epilogue of a product, row by row of `c_out`: `v ← relu?(v + bias + residual?)`.
+    fn finish(&self, v: &mut [f32], residual: Option<&[f32]>, relu: bool) {
+        let n = self.c_out;
+        let act = |s: f32| if relu { s.max(0.0) } else { s };
+        match residual {
+            Some(r) => {
+                for (row, rrow) in v.chunks_exact_mut(n).zip(r.chunks_exact(n)) {
+                    for ((v, b), r) in row.iter_mut().zip(&self.b).zip(rrow) {
+                        *v = act(*v + b + r);
+                    }
+                }
+            }
+            None => {
+                for row in v.chunks_exact_mut(n) {
+                    for (v, b) in row.iter_mut().zip(&self.b) {
+                        *v = act(*v + b);
+                    }
+                }
+            }
         }
     }
 
@@ -287,25 +296,10 @@ impl Conv {
                 par,
             );
         }
-        match residual {
-            Some(r) => {
-                assert_eq!(r.v.len(), out.len(), "residual of another shape");
-                for (row, rrow) in out.chunks_exact_mut(n).zip(r.v.chunks_exact(n)) {
-                    for ((v, b), r) in row.iter_mut().zip(&self.b).zip(rrow) {
-                        let s = *v + b + r;
-                        *v = if relu { s.max(0.0) } else { s };
-                    }
-                }
-            }
-            None => {
-                for row in out.chunks_exact_mut(n) {
-                    for (v, b) in row.iter_mut().zip(&self.b) {
-                        let s = *v + b;
-                        *v = if relu { s.max(0.0) } else { s };
-                    }
-                }
-            }
+        if let Some(r) = residual {
+            assert_eq!(r.v.len(), out.len(), "residual of another shape");
         }
+        self.finish(&mut out, residual.map(|r| r.v.as_slice()), relu);
         Map {
             n: x.n,
             h: oh,
