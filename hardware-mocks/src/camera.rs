@@ -308,7 +308,11 @@ async fn capture_loop(
     // sequence order: a renderer slower than the frame period then still keeps up when the
     // machine has cores to spare. Each frame renders the scene at its own capture time.
     let parallel = std::thread::available_parallelism().map_or(1, |n| n.get().min(4));
-    let start = clock.now_ns();
+    // Capture times are whole multiples of the frame period of clock time (without jitter),
+    // so a contact physics stepping on a grid of the same or a divided period has each frame's
+    // contact already solved.
+    let period_ns = (1e9 / config.actual_fps).round().max(1.0) as u64;
+    let start = (clock.now_ns().div_ceil(period_ns) * period_ns).saturating_sub(period_ns);
     let mut seq = 0u64;
     let mut next_t = capture_time_ns(&config, start, seq);
     let mut inflight: std::collections::VecDeque<(u64, u64, JoinHandle<Option<image::RgbImage>>)> =

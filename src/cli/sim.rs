@@ -5,6 +5,10 @@
 //!   for the shear) with the config's sensor optics and every image effect, writes the frame and
 //!   prints the wrench (`--json`: `{"fx":..,"fy":..,"fz":..,"tx":..,"ty":..,"tz":..}`, N and
 //!   N·mm, force on the gel in the sensor surface frame).
+//! - `rig sim forces [--indenter all|NAME,…] [--all-depths] [--config FILE] [--csv FILE]`
+//!   steps the plan's trajectories through the run's sensor physics, without the robot, and
+//!   prints each indenter's peak |Fx|, |Fy|, |Fz|, shear and |F| against the config's force
+//!   limit: what a recording will see, in minutes.
 //! - `rig sim contact-sheet --depth D --out docs/indenters.png` renders every built-in indenter
 //!   at one depth into a labelled grid (labels in a tiny built-in bitmap font).
 
@@ -30,6 +34,29 @@ pub enum SimCommand {
     Render(RenderArgs),
     /// Render every built-in indenter at one depth into one labelled PNG.
     ContactSheet(ContactSheetArgs),
+    /// The peak forces the plan will produce, per indenter, from the run's physics.
+    Forces(ForcesArgs),
+}
+
+/// Arguments of `rig sim forces`.
+#[derive(Debug, Args)]
+pub struct ForcesArgs {
+    /// Indenters: `all` (every built-in one) or comma-separated names or files.
+    #[arg(long, value_name = "NAMES", default_value = "all")]
+    pub indenter: String,
+    /// Every depth of the plan (default: its deepest only, where the forces peak).
+    #[arg(long)]
+    pub all_depths: bool,
+    /// Rig config whose [elastomer], [plan] and [safety] to use (default as for `rig sim
+    /// render`).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Also write the table as CSV.
+    #[arg(long, value_name = "FILE")]
+    pub csv: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 /// Arguments of `rig sim render`.
@@ -77,6 +104,7 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     match &args.what {
         SimCommand::Render(a) => render_command(a),
         SimCommand::ContactSheet(a) => contact_sheet_command(a),
+        SimCommand::Forces(a) => forces_command(a),
     }
 }
 
@@ -177,5 +205,93 @@ fn contact_sheet_command(args: &ContactSheetArgs) -> anyhow::Result<()> {
         args.depth,
         args.out.display()
     );
+    Ok(())
+}
+
+fn forces_command(args: &ForcesArgs) -> anyhow::Result<()> {
+    use crate::simrig::forces::plan_forces;
+    use hardware_mocks::rig_sim::DEFAULT_PHYSICS_RATE_HZ;
+    let loaded = super::config::resolve_config(args.config.as_deref())?;
+    let config = &loaded.config;
+    let names: Vec<String> = if args.indenter == "all" {
+        Indenter::list_builtin()
+            .iter()
+            .map(|s| (*s).to_owned())
+            .collect()
+    } else {
+        args.indenter
+            .split(',')
+            .map(|s| s.trim().to_owned())
+            .collect()
+    };
+    let indenters = names
+        .iter()
+        .map(|n| Indenter::load(n).with_context(|| format!("indenter {n}")))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let per = config.plan.contact_points_mm.len()
+        * config.plan.directions_deg.len()
+        * if args.all_depths {
+            config.plan.depths_mm.len()
+        } else {
+            1
+        };
+    let bar =
+        crate::train::progress_bar(!args.quiet, (per * indenters.len()) as u64, "trajectories");
+    let tick = || bar.inc(1);
+    let limit = config.safety.max_force_n;
+    let mut rows = Vec::new();
+    for ind in &indenters {
+        let f = plan_forces(
+            config,
+            ind,
+            !args.all_depths,
+            DEFAULT_PHYSICS_RATE_HZ,
+            &tick,
+        )
+        .map_err(|e| anyhow::anyhow!("indenter {}: cannot simulate: {e}", ind.name()))?;
+        rows.push(f);
+    }
+    bar.finish_and_clear();
+    println!(
+        "{:<12} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8} {:>10}  limit {limit} N",
+        "indenter", "traj", "|Fx|", "|Fy|", "|Fz|", "shear", "|F|", "gross slip"
+    );
+    let mut csv = String::from(
+        "indenter,trajectories,max_abs_fx_n,max_abs_fy_n,max_abs_fz_n,max_shear_n,max_norm_n,gross_slip_trajectories,over_limit\n",
+    );
+    for r in &rows {
+        let over = r.max_norm_n > limit;
+        println!(
+            "{:<12} {:>6} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>10}{}",
+            r.indenter,
+            r.trajectories,
+            r.max_abs_n[0],
+            r.max_abs_n[1],
+            r.max_abs_n[2],
+            r.max_shear_n,
+            r.max_norm_n,
+            r.gross_slip,
+            if over {
+                "  OVER THE LIMIT: a run trips"
+            } else {
+                ""
+            }
+        );
+        csv.push_str(&format!(
+            "{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{},{}\n",
+            r.indenter,
+            r.trajectories,
+            r.max_abs_n[0],
+            r.max_abs_n[1],
+            r.max_abs_n[2],
+            r.max_shear_n,
+            r.max_norm_n,
+            r.gross_slip,
+            over
+        ));
+    }
+    if let Some(path) = &args.csv {
+        std::fs::write(path, csv).with_context(|| format!("cannot write {}", path.display()))?;
+    }
     Ok(())
 }

@@ -197,6 +197,7 @@ pub async fn run(
     summary.clock_time_s = (clock.now_ns() - t0) as f64 * 1e-9;
     summary.clock_holds = clock.hold_stats();
     summary.image_lag_max_ms = sim.as_ref().map(|s| s.image_lag_max_ms());
+    summary.sim_physics = sim.as_ref().map(|s| s.physics_stats());
     pipeline.count_into(&mut summary, &rec);
     if let Some(s) = &sim {
         // When each supervisor stop reached the simulated controller.

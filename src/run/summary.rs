@@ -58,6 +58,8 @@ pub struct RunSummary {
     /// Simulated rig only: the largest gap between a frame's capture time and the time of the
     /// contact the simulated camera drew in it, ms.
     pub image_lag_max_ms: Option<f64>,
+    /// Simulated rig only: the contact physics' counters (steps, steps in contact).
+    pub sim_physics: Option<hardware_mocks::rig_sim::PhysicsStats>,
     /// Times a stream or the collector waited for the writer (slow disk).
     pub backpressure_waits: u64,
     /// Frames received from the camera in the whole run (recorded or not).

@@ -35,11 +35,13 @@ pub async fn govern(
             continue;
         }
         let lag = clock.now_ns().saturating_sub(newest) as f64 / period_ns;
-        let next = if lag > 8.0 {
+        // Up to about 6 frames in the pipeline (two renders in flight, each behind a contact
+        // solve, then encoding) is throughput, not falling behind.
+        let next = if lag > 12.0 {
             rate * 0.6
-        } else if lag > 4.0 {
+        } else if lag > 8.0 {
             rate * 0.9
-        } else if lag < 2.5 {
+        } else if lag < 6.0 {
             rate * 1.05
         } else {
             rate

@@ -20,6 +20,7 @@
 
 mod camera;
 mod faults;
+pub mod forces;
 mod ft;
 mod governor;
 pub mod render;
@@ -55,17 +56,19 @@ pub use hardware_mocks::sim;
 /// program starts) to warnings; `RUST_LOG` overrides it.
 pub const QUIET_DEVICES_LOG: &str = "hardware_mocks=warn";
 
-/// The contact physics of a simulated run: the Winkler foundation with incremental friction
-/// at 250 Hz of clock time. It is what a run can afford: one step costs tens of µs, so the
-/// physics keeps up with a clock running several times faster than real time and every F/T
-/// sample and frame sees the contact at its own time. The finite-layer model (more accurate,
-/// see `rig bench sim`) costs milliseconds per step: the physics then falls behind the clock,
-/// the F/T reads forces that are tens of ms stale, and the pairing cannot be checked against
-/// the truth. Choose it (`RunOptions::sim_physics`) only with a slow clock.
+/// The contact physics of a simulated run, for now still the Winkler foundation with
+/// incremental friction at 250 Hz of clock time, stepped on demand at every F/T sample's own
+/// time (tens of µs a step), without relaxation. The sensor physics the other commands use
+/// ([`sim::Effects::sensor`]: the finite layer, Coulomb friction on the gel's material points,
+/// relaxation) runs a full plan in about 150 s at 50 Hz (`PhysicsConfig::default()`), but its
+/// F/T twin then reads the wrench extrapolated between 20 ms ticks, which misses a stage's
+/// start by more than the Nano17's noise, or waits for a solve and delivers samples late; the
+/// run switches when the F/T gets exact values without waiting (see the issue notes).
 pub fn default_physics() -> PhysicsConfig {
     PhysicsConfig {
         contact: sim::ContactModel::Winkler,
-        on_demand: true,
+        rate_hz: 250.0,
+        viscoelastic: false,
         ..PhysicsConfig::default()
     }
 }
@@ -121,6 +124,11 @@ impl RunningSimRig {
     /// it shows, ms (see `PhysicsStats::max_field_age_ns`).
     pub fn image_lag_max_ms(&self) -> f64 {
         self.rig.physics().stats().max_field_age_ns as f64 * 1e-6
+    }
+
+    /// The contact physics' counters so far.
+    pub fn physics_stats(&self) -> hardware_mocks::rig_sim::PhysicsStats {
+        self.rig.physics().stats()
     }
 
     /// Where the simulated indenter's tip (the physical tool, not the reported TCP) was at

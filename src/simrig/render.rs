@@ -7,12 +7,13 @@ use std::sync::Arc;
 use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
 
-use super::sim::contact::{ContactModel, FrictionModel};
+use super::sim::contact::FrictionModel;
 use super::sim::optics::ImageEffects;
 use super::sim::{Effects, IndenterPose, Scene};
 
-/// The scene of `rig sim render`: layer BEM, monotonic Coulomb friction, and the image effects
-/// of the sensor's `[optics.effects]` (what its recordings show).
+/// The scene of `rig sim render`: the sensor physics of a run ([`Effects::sensor`]) held at one
+/// contact state (one shear step from the unloaded gel, relaxed: no viscoelastic overshoot),
+/// and the image effects of the sensor's `[optics.effects]` (what its recordings show).
 pub fn render_scene(
     config: &RigConfig,
     indenter: Indenter,
@@ -33,10 +34,10 @@ pub fn render_scene(
     let effects = ImageEffects::from_optics(&optics);
     scene.optics = Some(optics);
     scene.effects = Effects {
-        contact: ContactModel::Layer,
         friction: FrictionModel::Monotonic,
+        viscoelastic: None,
         image: Some(effects),
-        ..Effects::default()
+        ..Effects::sensor(&config.elastomer)
     };
     scene
 }

@@ -35,6 +35,7 @@ mod run_acceptance;
 mod run_record;
 mod safe_motion;
 mod sim_cli;
+mod sim_physics;
 mod sim_sensor;
 mod sync_bench;
 mod sync_clock;

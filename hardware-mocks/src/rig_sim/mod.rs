@@ -45,25 +45,33 @@
 //!
 //! # Cost
 //!
-//! One step, measured (release build, 2-core machine, cone 0.6 mm deep, sliding): finite layer
-//! at 0.4 mm cells with [`FrictionModel::Incremental`](crate::sim::FrictionModel::Incremental) about 5.4 ms; the same without friction
-//! 0.7 ms; 0.5 mm cells with friction 2.3 ms; Winkler with friction 27 µs. At 250 Hz of clock
-//! time the default setting therefore needs about 1.4 s of one core per clock second: on a
-//! scaled clock the task cannot keep up, skips ticks ([`PhysicsStats::skipped_ticks`]) and the
-//! buffer gets sparser (each sample is still exact for its pose time, and `wrench_at`
-//! interpolates between them). Choose [`PhysicsConfig`] for the clock's speed.
+//! The default physics ([`PhysicsConfig::default`]) is the sensor physics every command
+//! uses: the finite layer at 0.4 mm cells with Coulomb friction and the elastomer's relaxation,
+//! stepped at 50 Hz of clock time. One step in contact costs about 1.5–2.5 ms (release build,
+//! 2-core machine; see `rig bench run`'s "contact physics steps"). Steps sit on a grid of whole
+//! periods of clock time, and the simulated camera captures at whole multiples of its own
+//! period, so at 25 fps every frame's contact is a step the F/T also reads: 50 steps per clock
+//! second in all, and the full default plan records at about ×10 (148 s measured with
+//! `rig bench run` on a build whose `rig run` used it). `rig run` itself still uses Winkler at
+//! 250 Hz (`rig::simrig::default_physics`): see its docs for why.
 //!
 //! # Timing limits
 //!
-//! With [`PhysicsConfig::on_demand`] (the cheap models `rig run` uses), an F/T sample or a
-//! frame asked for at a time past the newest physics step first steps the physics, one period
-//! apart, through the poses the controller had up to that time ([`Ur5e::tip_pose_at`]), and the
-//! physics task replays ticks it woke too late for. A sample or frame thus shows the contact of
-//! the controller tick at or before its own time however late its task ran on a busy host
-//! ([`PhysicsStats::max_field_age_ns`] says how stale the images were). Without it (the costly
-//! models), the wrench past the newest step is the newest one (held, not extrapolated): a sample
-//! lags the pose by at most one physics period plus one controller tick while the task keeps up,
-//! and the camera renders the newest field at or before its capture time, with the same lag.
+//! With [`PhysicsConfig::on_demand`] (the default), a frame asked for at a time past the
+//! newest physics step first steps the physics through the grid ticks up to that time, and at
+//! that time itself if it is off the grid, at the poses the controller had then
+//! ([`Ur5e::tip_pose_at`]); the physics task replays ticks it woke too late for. A frame thus
+//! shows the contact of its own capture time however late its task ran on a busy host
+//! ([`PhysicsStats::max_field_age_ns`] says how stale the images were). The F/T twins step the
+//! grid ticks up to their sample time too, and read the wrench past the newest tick (under one
+//! period, 20 ms) extrapolated along the last two ticks: a solve per F/T sample would be a
+//! solve per millisecond. Where the motion changes within a period (a stage starting) the
+//! extrapolation misses the change until the next tick: up to a few hundredths of a newton
+//! for the 5 mm/s lift-off (`rig bench run`'s "max |paired − true|"). At the plan's speeds the extrapolation error is below the Nano17's
+//! noise except for a tick after a stop or reversal (`rig bench run`'s "max |paired − true|").
+//! Steps that cost milliseconds run off the async workers (`block_in_place`), so the
+//! controller and RTDE tasks are never held up by a solve. Without on-demand stepping, the
+//! wrench past the newest step is the newest one (held, not extrapolated).
 
 mod physics;
 

@@ -23,11 +23,10 @@ use crate::sim::{
 };
 use crate::truth::WrenchSource;
 
-/// Default physics rate, Hz of clock time.
-pub const DEFAULT_PHYSICS_RATE_HZ: f64 = 250.0;
-/// Default grid cell of the contact solve during a run, mm (coarser than the simulator's
-/// default, for speed).
-pub const DEFAULT_RUN_CELL_MM: f64 = 0.4;
+/// Default physics rate, Hz of clock time: two contact states per frame of a 25 fps camera.
+/// The F/T twins read the wrench interpolated linearly between them (20 µm of motion apart at
+/// the plan's 1 mm/s).
+pub const DEFAULT_PHYSICS_RATE_HZ: f64 = 50.0;
 /// Default number of `(t_ns, wrench)` samples kept: 4 s at 250 Hz.
 pub const DEFAULT_HISTORY: usize = 1000;
 
@@ -42,37 +41,49 @@ pub struct PhysicsConfig {
     pub cell_mm: Option<f64>,
     /// Tangential model; [`FrictionModel::Incremental`] carries stick/slip between steps.
     pub friction: FrictionModel,
+    /// Apply the elastomer's viscoelastic relaxation (`[elastomer] instant_modulus_ratio`,
+    /// `relaxation_time_s`) when it has one.
+    pub viscoelastic: bool,
     /// Samples kept in the ring buffer (at least 2).
     pub history: usize,
     /// Step on demand too: a [`WrenchSource::wrench_at`] or [`ContactPhysics::field_at`] for a
     /// time past the newest step first steps to the pose source's current pose, inline. The
     /// F/T mock and the camera then see the contact at their own sample time rather than up to
-    /// a physics period (plus the task's wake-up delay, many ms on a scaled clock) late. Only
-    /// for cheap models (Winkler, Hertz): the step runs on the caller's task.
+    /// a physics period (plus the task's wake-up delay, many ms on a scaled clock) late. The
+    /// step runs on the caller's task (a few ms for the layer model at its default cell).
     pub on_demand: bool,
 }
 
 impl Default for PhysicsConfig {
+    /// The sensor physics every command uses ([`Effects::sensor`]), stepped on demand at
+    /// [`DEFAULT_PHYSICS_RATE_HZ`].
     fn default() -> Self {
+        let sensor = Effects::sensor(&ElastomerConfig::default());
         Self {
             rate_hz: DEFAULT_PHYSICS_RATE_HZ,
-            contact: ContactModel::Layer,
-            cell_mm: Some(DEFAULT_RUN_CELL_MM),
-            friction: FrictionModel::Incremental,
+            contact: sensor.contact,
+            cell_mm: sensor.cell_mm,
+            friction: sensor.friction,
+            viscoelastic: true,
             history: DEFAULT_HISTORY,
-            on_demand: false,
+            on_demand: true,
         }
     }
 }
 
 impl PhysicsConfig {
-    /// The [`Effects`] of a physics step (`surface_field` when a camera needs images).
-    pub fn effects(&self, surface_field: bool) -> Effects {
+    /// The [`Effects`] of a physics step on `elastomer` (`surface_field` when a camera needs
+    /// images).
+    pub fn effects(&self, surface_field: bool, elastomer: &ElastomerConfig) -> Effects {
         Effects {
             contact: self.contact,
             cell_mm: self.cell_mm,
             friction: self.friction,
-            viscoelastic: None,
+            viscoelastic: if self.viscoelastic {
+                crate::sim::Viscoelastic::from_elastomer(elastomer)
+            } else {
+                None
+            },
             surface_field,
             image: None,
         }
@@ -258,7 +269,10 @@ impl ContactPhysics {
             indenter: self.inner.indenter.clone(),
             pose,
             optics: None,
-            effects: self.inner.config.effects(self.inner.want_field),
+            effects: self
+                .inner
+                .config
+                .effects(self.inner.want_field, &self.inner.elastomer),
         }
     }
 
@@ -341,12 +355,15 @@ impl ContactPhysics {
     }
 
     /// With [`PhysicsConfig::on_demand`]: when the newest step is older than `t_ns`, steps at
-    /// the poses the robot had from the newest step up to `t_ns`, one physics period apart
-    /// (at most a second of them), and then at `t_ns`. A consumer that is on time (the F/T at
-    /// 1 kHz) thus never leaves a gap in the buffer while the physics task is late, and a
-    /// consumer running late (a frame rendered after its capture time) finds the contact of
-    /// its own instant.
-    fn catch_up(&self, t_ns: u64) {
+    /// the poses the robot had at the physics ticks (multiples of the period) from the newest
+    /// step up to `t_ns` (at most a second of them), and then at `t_ns` itself when `exact`.
+    /// A consumer that is on time (the F/T at 1 kHz) thus never leaves a gap in the buffer
+    /// while the physics task is late, and a consumer running late (a frame rendered after its
+    /// capture time) finds the contact of its own instant. The F/T asks for ticks only
+    /// (`exact = false`) and reads the wrench between the newest tick and its sample time
+    /// extrapolated ([`WrenchSource::wrench_at`]): a solve per F/T sample would cost a solve per
+    /// millisecond.
+    fn catch_up(&self, t_ns: u64, exact: bool) {
         if !self.inner.config.on_demand {
             return;
         }
@@ -360,23 +377,33 @@ impl ContactPhysics {
         };
         let period_ns = (1e9 / self.inner.config.rate_hz).max(1.0) as u64;
         let mut times = Vec::new();
-        if let Some(t_last) = newest {
-            let from = (t_last + period_ns).max(t_ns.saturating_sub(1_000_000_000));
-            times.extend((from..t_ns).step_by(period_ns as usize));
+        let from = newest
+            .map_or(t_ns, |t| t + 1)
+            .max(t_ns.saturating_sub(1_000_000_000));
+        let first_tick = from.div_ceil(period_ns) * period_ns;
+        times.extend((first_tick..=t_ns).step_by(period_ns as usize));
+        if exact && times.last() != Some(&t_ns) {
+            times.push(t_ns);
         }
-        times.push(t_ns);
-        for t in times {
-            let (t_pose, tcp) = src(t);
-            if let Err(e) = self.update(t_pose, &tcp) {
-                tracing::debug!("contact physics on demand at {t_pose} ns: {e}");
+        if times.is_empty() {
+            return;
+        }
+        // The steps cost milliseconds: on an async worker (the F/T twins sample from theirs),
+        // hand the worker's other tasks (the controller, RTDE) to another thread first.
+        off_the_async_workers(|| {
+            for t in times {
+                let (t_pose, tcp) = src(t);
+                if let Err(e) = self.update(t_pose, &tcp) {
+                    tracing::debug!("contact physics on demand at {t_pose} ns: {e}");
+                }
             }
-        }
+        });
     }
 
     /// The surface field of the newest step at or before `t_ns` (the oldest kept one if all
     /// are later), with its pose time.
     pub fn field_at(&self, t_ns: u64) -> Option<(u64, Arc<SurfaceField>)> {
-        self.catch_up(t_ns);
+        self.catch_up(t_ns, true);
         let res = lock(&self.inner.results);
         let i = res.fields.partition_point(|(t, _)| *t <= t_ns);
         let found = res.fields.get(i.saturating_sub(1)).cloned();
@@ -441,7 +468,14 @@ impl ContactPhysics {
                     .collect();
                 let p = physics.clone();
                 let src = pose_source.clone();
+                let now = clock.now_ns();
                 let r = tokio::task::spawn_blocking(move || {
+                    if replay {
+                        // On demand, every step is on the clock's grid of periods (what the
+                        // consumers step too): up to now, missed ticks included.
+                        p.catch_up(now, false);
+                        return;
+                    }
                     for t in times {
                         let (t_ns, tcp) = src(t);
                         if let Err(e) = p.update(t_ns, &tcp) {
@@ -460,9 +494,19 @@ impl ContactPhysics {
 }
 
 impl WrenchSource for ContactPhysics {
-    /// Linear interpolation in the buffer, clamped at both ends; zero before the first step.
+    /// Linear interpolation in the buffer, clamped at the start; zero before the first step.
+    /// Past the newest step (at most one physics period, with
+    /// [`PhysicsConfig::on_demand`]), the wrench is extrapolated along the last two steps at
+    /// least half a period apart, and never past the unloaded gel: a normal force that would
+    /// change sign gives zero. Without on-demand stepping it is held.
     fn wrench_at(&self, t_ns: u64) -> Wrench {
-        self.catch_up(t_ns);
+        // A cheap model (Winkler, Hertz: tens of µs) steps at the sample's own time, so the
+        // F/T reads the exact contact; the layer model steps the grid and extrapolates.
+        let cheap = matches!(
+            self.inner.config.contact,
+            ContactModel::Winkler | ContactModel::Hertz
+        );
+        self.catch_up(t_ns, cheap);
         let res = lock(&self.inner.results);
         let ring = &res.ring;
         let Some(&(t_first, w_first)) = ring.front() else {
@@ -473,7 +517,26 @@ impl WrenchSource for ContactPhysics {
             return w_first;
         }
         if t_ns >= t_last {
-            return w_last;
+            if !self.inner.config.on_demand || t_ns == t_last {
+                return w_last;
+            }
+            let half_period = (0.5e9 / self.inner.config.rate_hz) as u64;
+            let Some(&(t0, w0)) = ring.iter().rev().find(|(t, _)| *t + half_period <= t_last)
+            else {
+                return w_last;
+            };
+            let s = ((t_ns - t_last) as f64 / (t_last - t0) as f64).min(2.0);
+            let (a, b) = (w0.to_array(), w_last.to_array());
+            let out: [f64; 6] = std::array::from_fn(|k| b[k] + s * (b[k] - a[k]));
+            // Pressing gives Fz < 0: extrapolating an unloading past zero is lift-off.
+            if out[2] >= 0.0 && b[2] < 0.0 || b[2] == 0.0 {
+                return if b[2] == 0.0 {
+                    w_last
+                } else {
+                    Wrench::default()
+                };
+            }
+            return Wrench::from_array(out);
         }
         // First sample strictly after t_ns; 1 ≤ i < len here.
         let i = ring.partition_point(|&(t, _)| t <= t_ns);
@@ -532,6 +595,17 @@ impl FrameRenderer for PhysicsRenderer {
             self.renderer
                 .render(&field, self.noise_seed.wrapping_add(n)),
         )
+    }
+}
+
+/// Runs blocking work `f` so that it does not hold up a multi-threaded tokio runtime's other
+/// tasks: through `block_in_place` on such a runtime (a no-op move off a thread that is not one
+/// of its workers), directly anywhere else (a current-thread runtime, no runtime).
+fn off_the_async_workers<R>(f: impl FnOnce() -> R) -> R {
+    use tokio::runtime::{Handle, RuntimeFlavor};
+    match Handle::try_current() {
+        Ok(h) if h.runtime_flavor() == RuntimeFlavor::MultiThread => tokio::task::block_in_place(f),
+        _ => f(),
     }
 }
 

@@ -51,6 +51,29 @@ impl Scene {
     }
 }
 
+/// Grid cell of the contact physics every command simulates a sensor with, mm: 25 × 20 cells
+/// on the 10 × 8 mm gel, each overlap sub-sampled at 0.1 mm (see the `contact` module docs for
+/// its error against the 0.1 mm grid and its cost).
+pub const SENSOR_CELL_MM: f64 = 0.4;
+
+impl Effects {
+    /// The contact physics of a sensor, the same for every command that simulates one
+    /// (`rig run` on the simulated rig, `rig sim render` and `rig sim forces`, the demo): the
+    /// finite layer at [`SENSOR_CELL_MM`], Coulomb friction with history (stick tracked on the
+    /// gel's material points), and the elastomer's viscoelastic relaxation when its config has
+    /// one. Force only; add a field or an image as needed.
+    pub fn sensor(elastomer: &ElastomerConfig) -> Self {
+        Self {
+            contact: ContactModel::Layer,
+            cell_mm: Some(SENSOR_CELL_MM),
+            friction: FrictionModel::Incremental,
+            viscoelastic: Viscoelastic::from_elastomer(elastomer),
+            surface_field: false,
+            image: None,
+        }
+    }
+}
+
 /// The effects a scene asks for. Default: finite-thickness layer BEM at the default grid,
 /// no friction, no viscoelasticity, no surface field, no image (force only).
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -175,6 +198,17 @@ pub struct Viscoelastic {
     pub instant_ratio: f64,
     /// Relaxation time, s (> 0).
     pub tau_s: f64,
+}
+
+impl Viscoelastic {
+    /// The elastomer's relaxation (`instant_modulus_ratio`, `relaxation_time_s`); `None` when
+    /// its ratio is 1 (no relaxation).
+    pub fn from_elastomer(e: &ElastomerConfig) -> Option<Self> {
+        (e.instant_modulus_ratio != 1.0).then_some(Self {
+            instant_ratio: e.instant_modulus_ratio,
+            tau_s: e.relaxation_time_s,
+        })
+    }
 }
 
 /// Image effects a scene asks for, beyond shading over the background (always done when an

@@ -6,6 +6,7 @@ mod common;
 mod contact_convergence;
 mod contact_effects;
 mod contact_hard_cases;
+mod contact_physics;
 mod nano17;
 mod optics_indenters;
 mod optics_render;

@@ -31,9 +31,11 @@ use tokio::net::{TcpStream, UdpSocket};
 const DEPTH_MM: f64 = 0.5;
 
 /// Waits until the physics has a step within one physics period (4 ms) of clock time `t_ns`.
+/// Waits until the physics has stepped within one of its periods of `t_ns`.
 async fn physics_reaches(physics: &ContactPhysics, t_ns: u64) {
+    let period_ns = (1e9 / physics.config().rate_hz) as u64;
     eventually("the physics to catch up", || {
-        physics.latest().is_some_and(|(t, _)| t + 4_000_000 >= t_ns)
+        physics.latest().is_some_and(|(t, _)| t + period_ns >= t_ns)
     })
     .await;
 }
@@ -166,7 +168,7 @@ fn static_reference(cfg: &RigConfig, physics: &PhysicsConfig) -> sim::SimOutput 
             shear_mm: [0.0, 0.0],
         },
     );
-    scene.effects = physics.effects(false);
+    scene.effects = physics.effects(false, &cfg.elastomer);
     sim::simulate(&scene).unwrap()
 }
 
@@ -247,6 +249,11 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
             queue_len: 64,
             ..SimCameraConfig::ideal(25.0)
         }),
+        // Elastic, so the contact at rest is the static one (relaxation is tested apart).
+        physics: PhysicsConfig {
+            viscoelastic: false,
+            ..PhysicsConfig::default()
+        },
         ..SimRigOptions::default()
     };
     let physics_cfg = opts.physics.clone();

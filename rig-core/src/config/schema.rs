@@ -143,14 +143,23 @@ pub struct ElastomerConfig {
     pub size_y_mm: f64,
     /// Gel thickness (paper: 3 mm); no plan may press deeper.
     pub thickness_mm: f64,
-    /// Young's modulus. Assumed for XP-565 mixed A:B = 1:15 (a soft silicone, roughly 0.1-0.3 MPa);
-    /// not measured.
+    /// Young's (relaxed) modulus. Assumed for XP-565 mixed A:B = 1:15 (a soft silicone, roughly
+    /// 0.1-0.3 MPa); not measured. (With the finite-layer physics, 0.275 MPa and 2 mm slides give
+    /// the paper's work range over the default plan: `rig sim forces`, see the issue notes.)
     pub youngs_modulus_mpa: f64,
     /// Poisson's ratio; silicone is nearly incompressible (assumed 0.49).
     pub poisson_ratio: f64,
     /// Coulomb friction coefficient between indenter and gel (assumed 1.0; silicone on resin or
     /// metal is typically 0.5-1.5).
     pub friction_coefficient: f64,
+    /// Instantaneous over relaxed Young's modulus of the gel's viscoelastic relaxation (a
+    /// standard linear solid; `youngs_modulus_mpa` is the relaxed modulus). At least 1; 1 turns
+    /// relaxation off, so the force is a function of the contact state alone. Assumed 1.25: soft
+    /// silicones relax by some tens of percent under a held indentation.
+    pub instant_modulus_ratio: f64,
+    /// Relaxation time of that solid, s (> 0). Assumed 1.5 s, the order of a held press's
+    /// visible force decay on silicone gels.
+    pub relaxation_time_s: f64,
 }
 
 impl Default for ElastomerConfig {
@@ -162,6 +171,8 @@ impl Default for ElastomerConfig {
             youngs_modulus_mpa: 0.2,
             poisson_ratio: 0.49,
             friction_coefficient: 1.0,
+            instant_modulus_ratio: 1.25,
+            relaxation_time_s: 1.5,
         }
     }
 }

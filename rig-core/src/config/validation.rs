@@ -126,6 +126,16 @@ impl RigConfig {
                 format!("{:?} must be finite and ≥ 0", e.friction_coefficient),
             );
         }
+        if !(e.instant_modulus_ratio.is_finite() && e.instant_modulus_ratio >= 1.0) {
+            v.push(
+                "elastomer.instant_modulus_ratio",
+                format!(
+                    "{:?} must be finite and ≥ 1 (1 turns relaxation off)",
+                    e.instant_modulus_ratio
+                ),
+            );
+        }
+        v.positive("elastomer.relaxation_time_s", e.relaxation_time_s);
     }
 
     fn validate_safety(&self, v: &mut Validator) {

@@ -331,12 +331,16 @@ impl Shape {
             Primitive::Polygon(p) => {
                 let n = f64::from(p.sides);
                 let apothem = p.circumradius_mm * (std::f64::consts::PI / n).cos();
-                let inside = (0..p.sides).all(|k| {
-                    // Edge normals sit half-way between vertices (first vertex on +x).
-                    let phi = (f64::from(k) + 0.5) * std::f64::consts::TAU / n;
-                    u * phi.cos() + v * phi.sin() <= apothem + 1e-12
-                });
-                if inside { 0.0 } else { NONE }
+                // Edge normals sit half-way between vertices (first vertex on +x), at
+                // (k + ½)·2π/n; the point is inside when its projection on the normal nearest
+                // its own direction is within the apothem (the farthest projection of all).
+                let sector = std::f64::consts::TAU / n;
+                let off = v.atan2(u).rem_euclid(sector) - sector / 2.0;
+                if rho * off.cos() <= apothem + 1e-12 {
+                    0.0
+                } else {
+                    NONE
+                }
             }
             Primitive::Bars(p) => {
                 if u.abs() > p.length_mm / 2.0 {

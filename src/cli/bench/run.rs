@@ -75,6 +75,17 @@ pub fn table(s: &RunSummary) -> String {
         ),
         ("max |paired − true| force", format!("{truth:.4} N")),
         (
+            "contact physics steps",
+            s.sim_physics.map_or("-".into(), |p| {
+                format!(
+                    "{} ({} in contact, {:.0} per clock s)",
+                    p.steps,
+                    p.contact_steps,
+                    p.steps as f64 / s.clock_time_s.max(1e-9)
+                )
+            }),
+        ),
+        (
             "full plan (240), extrapolated",
             if n > 0 {
                 format!(

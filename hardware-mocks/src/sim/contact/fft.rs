@@ -119,6 +119,40 @@ impl Conv2 {
         }
     }
 
+    /// Spectrum of the complex grid field `re + i·im` (zero-padded): two real fields in one
+    /// transform. Their own spectra are `(Z[k] + conj Z[−k])/2` and `(Z[k] − conj Z[−k])/2i`.
+    pub fn forward_pair(&mut self, re: &[f64], im: &[f64], out: &mut Vec<Complex64>) {
+        out.clear();
+        out.resize(self.px * self.py, Complex64::default());
+        for j in 0..self.ny {
+            for i in 0..self.nx {
+                let k = j * self.nx + i;
+                out[j * self.px + i] = Complex64::new(re[k], im[k]);
+            }
+        }
+        self.fft2(out, false, self.ny);
+    }
+
+    /// Inverse transform of the spectrum of `a + i·b` (two real fields), cropped to the grid,
+    /// times `scale`: `a` into `re`, `b` into `im`.
+    pub fn inverse_pair(
+        &mut self,
+        spec: &mut [Complex64],
+        scale: f64,
+        re: &mut [f64],
+        im: &mut [f64],
+    ) {
+        self.fft2(spec, true, self.ny);
+        let norm = scale / (self.px * self.py) as f64;
+        for j in 0..self.ny {
+            for i in 0..self.nx {
+                let z = spec[j * self.px + i];
+                re[j * self.nx + i] = z.re * norm;
+                im[j * self.nx + i] = z.im * norm;
+            }
+        }
+    }
+
     /// `out = scale · (K ∗ field)` on the grid.
     pub fn convolve(
         &mut self,

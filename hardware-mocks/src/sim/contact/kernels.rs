@@ -164,9 +164,14 @@ pub(crate) fn normal_kernel(
 /// gel's ν = 0.49). Also returns the largest eigenvalue of the circulant operator (for the
 /// solver's step), in units of 1/E.
 pub(crate) struct TangentialKernel {
-    pub xx: Vec<Complex64>,
-    pub yy: Vec<Complex64>,
-    pub xy: Vec<Complex64>,
+    /// The operator on the packed traction spectrum `Z` of `q_x + i·q_y`: the spectrum of
+    /// `u_x + i·u_y` is `W[k] = P[k] Z[k] + Q[k] conj(Z[−k])`, with `P = (Kxx + Kyy)/2` and
+    /// `Q = (Kxx − Kyy)/2 + i Kxy` (from `Q_x = (Z + conj Z[−k])/2`, `Q_y = (Z − conj Z[−k])/2i`
+    /// for real tractions). One forward and one inverse transform per application.
+    pub packed_p: Vec<Complex64>,
+    pub packed_q: Vec<Complex64>,
+    /// Padded index of `−k` for each padded index `k`.
+    pub mirror: Vec<u32>,
     pub lambda_max: f64,
 }
 
@@ -194,10 +199,24 @@ pub(crate) fn tangential_kernel(conv: &mut Conv2, cell: f64, nu: f64) -> Tangent
             (a + d) / 2.0 + (((a - d) / 2.0).powi(2) + b * b).sqrt()
         })
         .fold(0.0, f64::max);
+    let packed_p = xx.iter().zip(&yy).map(|(a, d)| (a + d) * 0.5).collect();
+    let packed_q = xx
+        .iter()
+        .zip(&yy)
+        .zip(&xy)
+        .map(|((a, d), b)| (a - d) * 0.5 + Complex64::new(0.0, 1.0) * b)
+        .collect();
+    let (px, py) = (conv.px, conv.py);
+    let mirror = (0..px * py)
+        .map(|k| {
+            let (i, j) = (k % px, k / px);
+            (((py - j) % py) * px + (px - i) % px) as u32
+        })
+        .collect();
     TangentialKernel {
-        xx,
-        yy,
-        xy,
+        packed_p,
+        packed_q,
+        mirror,
         lambda_max,
     }
 }

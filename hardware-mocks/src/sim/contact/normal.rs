@@ -6,7 +6,7 @@ use rustfft::num_complex::Complex64;
 use super::fft::Conv2;
 
 /// Relative change of the pressure field at which the CG stops.
-const CG_TOL: f64 = 1e-9;
+const CG_TOL: f64 = 1e-7;
 /// Iteration cap of the CG (it typically needs 20–200).
 const CG_MAX_ITER: u32 = 2000;
 

@@ -20,7 +20,7 @@ use super::fft::Conv2;
 use super::kernels::TangentialKernel;
 
 /// Relative change of the tractions at which the iteration stops.
-const TOL: f64 = 1e-7;
+const TOL: f64 = 3e-5;
 const MAX_ITER: u32 = 3000;
 
 pub(crate) struct Tangential {
@@ -48,34 +48,28 @@ struct Apply<'a> {
     conv: &'a mut Conv2,
     k: &'a TangentialKernel,
     inv_e: f64,
-    fx: Vec<Complex64>,
-    fy: Vec<Complex64>,
-    gx: Vec<Complex64>,
+    z: Vec<Complex64>,
+    w: Vec<Complex64>,
 }
 
 impl Apply<'_> {
-    /// `(ux, uy) = C (qx, qy)`.
+    /// `(ux, uy) = C (qx, qy)`: both tractions in one forward transform (`qx + i·qy`), both
+    /// displacements out of one inverse (`ux + i·uy`), as all four fields are real.
     fn apply(&mut self, qx: &[f64], qy: &[f64], ux: &mut [f64], uy: &mut [f64]) {
-        self.conv.forward(qx, &mut self.fx);
-        self.conv.forward(qy, &mut self.fy);
-        self.gx.clear();
-        self.gx.extend(
-            self.fx
-                .iter()
-                .zip(&self.fy)
-                .zip(self.k.xx.iter().zip(&self.k.xy))
-                .map(|((a, b), (kxx, kxy))| a * kxx + b * kxy),
-        );
-        for ((a, b), (kxy, kyy)) in self
-            .fx
+        self.conv.forward_pair(qx, qy, &mut self.z);
+        self.w.clear();
+        self.w.resize(self.z.len(), Complex64::default());
+        let k = self.k;
+        for (((w, z), (p, q)), &m) in self
+            .w
             .iter_mut()
-            .zip(&self.fy)
-            .zip(self.k.xy.iter().zip(&self.k.yy))
+            .zip(&self.z)
+            .zip(k.packed_p.iter().zip(&k.packed_q))
+            .zip(&k.mirror)
         {
-            *a = *a * kxy + b * kyy;
+            *w = p * z + q * self.z[m as usize].conj();
         }
-        self.conv.inverse(&mut self.gx, self.inv_e, ux);
-        self.conv.inverse(&mut self.fx, self.inv_e, uy);
+        self.conv.inverse_pair(&mut self.w, self.inv_e, ux, uy);
     }
 }
 
@@ -90,21 +84,24 @@ pub(crate) fn bem_step(
     q0x: &[f64],
     q0y: &[f64],
     ds: [f64; 2],
+    guess: Option<(&[f64], &[f64])>,
 ) -> Tangential {
     let n = limit.len();
     let mut op = Apply {
         conv,
         k,
         inv_e,
-        fx: Vec::new(),
-        fy: Vec::new(),
-        gx: Vec::new(),
+        z: Vec::new(),
+        w: Vec::new(),
     };
     let step = 1.0 / (k.lambda_max * inv_e);
     let (mut u0x, mut u0y) = (vec![0.0; n], vec![0.0; n]);
     op.apply(q0x, q0y, &mut u0x, &mut u0y);
-    // Start from the previous tractions plus a rigid stick guess, projected.
-    let (mut qx, mut qy) = (q0x.to_vec(), q0y.to_vec());
+    // Start from the guess (else the previous tractions), projected.
+    let (mut qx, mut qy) = match guess {
+        Some((gx, gy)) if gx.len() == n && gy.len() == n => (gx.to_vec(), gy.to_vec()),
+        _ => (q0x.to_vec(), q0y.to_vec()),
+    };
     project(&mut qx, &mut qy, limit);
     let (mut yx, mut yy) = (qx.clone(), qy.clone());
     let (mut ux, mut uy) = (vec![0.0; n], vec![0.0; n]);
