@@ -359,8 +359,9 @@ impl ContactPhysics {
     /// step up to `t_ns` (at most a second of them), and then at `t_ns` itself when `exact`.
     /// A consumer that is on time (the F/T at 1 kHz) thus never leaves a gap in the buffer
     /// while the physics task is late, and a consumer running late (a frame rendered after its
-    /// capture time) finds the contact of its own instant. The F/T asks for ticks only
-    /// (`exact = false`) and reads the wrench between the newest tick and its sample time
+    /// capture time) finds the contact of its own instant. With a cheap model (Winkler,
+    /// Hertz) the F/T steps at its own sample time too; with the layer model it asks for ticks
+    /// only (`exact = false`) and reads the wrench between the newest tick and its sample time
     /// extrapolated ([`WrenchSource::wrench_at`]): a solve per F/T sample would cost a solve per
     /// millisecond.
     fn catch_up(&self, t_ns: u64, exact: bool) {

@@ -535,8 +535,14 @@ impl ContactEngine {
         // material has moved with the indenter, so the contact is found at the displaced
         // material points (stick is tracked in the gel's material coordinates; the shift lags
         // one step, micrometres apart at the run's rates).
+        // Only for the continuum (BEM) models: Winkler's independent shear springs are 51×
+        // softer than its normal ones at ν = 0.49, so their stick displacements are not a
+        // surface that moves (they reach tens of mm).
+        let continuum = matches!(model, ContactModel::HalfSpace | ContactModel::Layer);
         let shift = match (&self.friction, friction) {
-            (Some(h), FrictionModel::Incremental) if grid == Some(h.grid) && h.model == model => {
+            (Some(h), FrictionModel::Incremental)
+                if continuum && grid == Some(h.grid) && h.model == model =>
+            {
                 Some((h.ux.as_slice(), h.uy.as_slice()))
             }
             _ => None,
