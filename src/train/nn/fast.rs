@@ -160,9 +160,6 @@ impl Conv {
     /// buffer itself read with a row stride of `c_in` (rows overlap), accumulated over `ky`.
     fn run_3x3(&self, x: &Map, residual: Option<&Map>, relu: bool, pad: &mut Vec<f32>) -> Map {
         let (h, w, c) = (x.h, x.w, x.c);
-        if let Some(r) = residual {
-            assert_eq!(r.v.len(), h * w * self.c_out, "residual of another shape");
-        }
         let wp = w + 2;
         // Two spare pixels: the discarded columns of the last row read past the border.
         let len = ((h + 2) * wp + 2) * c;
@@ -225,6 +222,9 @@ impl Conv {
 
     /// The epilogue of a product, row by row of `c_out`: `v ← relu?(v + bias + residual?)`.
     fn finish(&self, v: &mut [f32], residual: Option<&[f32]>, relu: bool) {
+        if let Some(r) = residual {
+            assert_eq!(r.len(), v.len(), "residual of another shape");
+        }
         let n = self.c_out;
         let act = |s: f32| if relu { s.max(0.0) } else { s };
         match residual {
@@ -295,9 +295,6 @@ impl Conv {
                 false,
                 par,
             );
-        }
-        if let Some(r) = residual {
-            assert_eq!(r.v.len(), out.len(), "residual of another shape");
         }
         self.finish(&mut out, residual.map(|r| r.v.as_slice()), relu);
         Map {
