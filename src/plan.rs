@@ -515,9 +515,9 @@ mod tests {
         assert!((a.x - 0.403).abs() < 1e-12 && (a.y - 0.002).abs() < 1e-12);
         assert!((a.z - 0.202).abs() < 1e-12);
         assert!((b.z - 0.1992).abs() < 1e-12);
-        // Shear at 90°: +y by 1 mm.
+        // Shear at 90°: +y by 2 mm.
         let shear = t.stage(StageName::Shear).unwrap();
-        assert!((shear.waypoints[1].y - 0.003).abs() < 1e-12);
+        assert!((shear.waypoints[1].y - 0.004).abs() < 1e-12);
         assert!((shear.waypoints[1].z - 0.1992).abs() < 1e-12);
         // Tool down everywhere.
         let down_pose = Pose::new(0.0, 0.0, 0.0, PI, 0.0, 0.0);

@@ -53,7 +53,8 @@ pub struct RunSummary {
     /// Wall-clock time of the whole run, s.
     pub wall_time_s: f64,
     /// Simulated rig only: how often, and how long in real time, simulated time held for a
-    /// simulated device or the runtime that fell behind (a stalled or busy host).
+    /// simulated device or the runtime that fell behind (a stalled or busy host), or the
+    /// contact physics pacing it (each of its steps costs milliseconds).
     pub clock_holds: rig_core::clock::HoldStats,
     /// Simulated rig only: the largest gap between a frame's capture time and the time of the
     /// contact the simulated camera drew in it, ms.
@@ -206,7 +207,7 @@ impl RunSummary {
         let h = &self.clock_holds;
         if h.holds > 0 {
             s.push_str(&format!(
-                "simulated time held {} times ({:.2} s of real time; last for the {}): the host fell behind\n",
+                "simulated time waited {} times ({:.2} s of real time; last for the {}): it runs as fast as the slowest simulated device\n",
                 h.holds,
                 h.held_s,
                 h.last_holder.unwrap_or("a device")

@@ -56,21 +56,13 @@ pub use hardware_mocks::sim;
 /// program starts) to warnings; `RUST_LOG` overrides it.
 pub const QUIET_DEVICES_LOG: &str = "hardware_mocks=warn";
 
-/// The contact physics of a simulated run, for now still the Winkler foundation with
-/// incremental friction at 250 Hz of clock time, stepped on demand at every F/T sample's own
-/// time (tens of µs a step), without relaxation. The sensor physics the other commands use
+/// The contact physics of a simulated run: the sensor physics every command uses
 /// ([`sim::Effects::sensor`]: the finite layer, Coulomb friction on the gel's material points,
-/// relaxation) runs a full plan in about 150 s at 50 Hz (`PhysicsConfig::default()`), but its
-/// F/T twin then reads the wrench extrapolated between 20 ms ticks, which misses a stage's
-/// start by more than the Nano17's noise, or waits for a solve and delivers samples late; the
-/// run switches when the F/T gets exact values without waiting (see the issue notes).
+/// the elastomer's relaxation), stepped on a 50 Hz grid of clock time. Its F/T twin reads the
+/// pose of each sample off the line of the last two steps and solves only where the motion
+/// leaves that line (see `ContactPhysics`'s `wrench_at`).
 pub fn default_physics() -> PhysicsConfig {
-    PhysicsConfig {
-        contact: sim::ContactModel::Winkler,
-        rate_hz: 250.0,
-        viscoelastic: false,
-        ..PhysicsConfig::default()
-    }
+    PhysicsConfig::default()
 }
 
 /// How `rig run` wants the simulated rig.

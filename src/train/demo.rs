@@ -31,8 +31,8 @@ pub struct DemoPlan {
     pub seen: Vec<&'static str>,
     pub unseen: Vec<&'static str>,
     pub directions_deg: Vec<f64>,
-    /// How far each trajectory slides at depth, mm (the rig configs' 1 mm gives shear forces
-    /// of a few tenths of a newton in the simulator, too small a signal for the small models).
+    /// How far each trajectory slides at depth, mm (the rig configs' 2 mm: gross slip at the
+    /// end of the slide for most indenters).
     pub shear_distance_mm: f64,
     pub camera: (u32, u32),
     pub fps: f64,
@@ -51,7 +51,7 @@ impl DemoPlan {
                 seen: vec!["sphere", "hemisphere", "prism"],
                 unseen: vec!["cone"],
                 directions_deg: vec![0.0, 90.0, 180.0, 270.0],
-                shear_distance_mm: 3.0,
+                shear_distance_mm: 2.0,
                 camera: (160, 120),
                 fps: 10.0,
                 spec: (32, 24),
@@ -98,7 +98,7 @@ impl DemoPlan {
                 seen: vec!["sphere", "hemisphere", "prism", "dots", "line", "random"],
                 unseen: vec!["cone", "sphere_s"],
                 directions_deg: (0..12).map(|k| k as f64 * 30.0).collect(),
-                shear_distance_mm: 3.0,
+                shear_distance_mm: 2.0,
                 camera: (320, 240),
                 fps: 25.0,
                 spec: (64, 48),

@@ -180,13 +180,13 @@ fn a_camera_stall_mid_shear_stops_the_run() {
 fn a_force_over_the_limit_fails_the_trajectory_and_the_run_goes_on() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    // The deepest layer: the cone at 0.8 mm pushes about 1.8 N in the run's Winkler physics
-    // (0.4 mm deep: about 0.5 N); the limit sits between.
+    // The deepest layer: the cone at 0.8 mm pushes about 0.47 N in the run's sensor physics
+    // (0.4 mm deep: about 0.1 N; `rig sim forces --indenter cone`); the limit sits between.
     let cfg = config(
         tmp.path(),
         &[
             ("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.4, 0.8]"),
-            ("max_force_n = 20.0", "max_force_n = 1.0"),
+            ("max_force_n = 20.0", "max_force_n = 0.3"),
             CONTINUE,
         ],
     );
@@ -208,7 +208,7 @@ fn a_force_over_the_limit_fails_the_trajectory_and_the_run_goes_on() {
         assert_eq!(e.status, Status::Failed, "{e:?}");
         let r = e.reason.as_deref().unwrap();
         assert!(
-            r.contains("force limit") && r.contains("max_force_n = 1"),
+            r.contains("force limit") && r.contains("max_force_n = 0.3"),
             "{r}"
         );
     }

@@ -159,7 +159,7 @@ fn envelope_that_excludes_a_waypoint_is_refused_naming_the_trajectory() {
 
 #[test]
 fn envelope_side_violation_names_the_shear_stage() {
-    // x reaches 0.404 m when shearing from (3, ·) mm towards +x.
+    // x reaches 0.405 m when shearing 2 mm from (3, ·) mm towards +x.
     let cfg = config_with("max_x = 0.42", "max_x = 0.4035");
     let o = rig(&[
         "plan",
@@ -171,7 +171,7 @@ fn envelope_side_violation_names_the_shear_stage() {
     assert_eq!(o.status.code(), Some(1));
     let err = stderr(&o);
     assert!(
-        err.contains("trajectory p2-d0.2-a000, stage shear, waypoint 1: x = 0.4040 m is above safety.envelope.max_x = 0.4035 m"),
+        err.contains("trajectory p2-d0.2-a000, stage shear, waypoint 1: x = 0.4050 m is above safety.envelope.max_x = 0.4035 m"),
         "{err}"
     );
 }

@@ -260,7 +260,7 @@ fn resume_refuses_another_indenter_or_config() {
     let other_cfg = common::edited_sim_config(
         tmp.path(),
         "other.toml",
-        &[("shear_distance_mm = 1.0", "shear_distance_mm = 0.8")],
+        &[("shear_distance_mm = 2.0", "shear_distance_mm = 1.5")],
     );
     let out = Command::new(env!("CARGO_BIN_EXE_rig"))
         .args(["run", "--indenter", "cone", "--resume", "--config"])

@@ -5,7 +5,7 @@
 //! # Pieces
 //!
 //! - [`ContactPhysics`]: a [`Simulator`](crate::sim::Simulator) stepped at a fixed rate of clock time
-//!   ([`PhysicsConfig::rate_hz`], default 250 Hz) from the TCP pose of a pose source
+//!   ([`PhysicsConfig::rate_hz`], default 50 Hz) from the TCP pose of a pose source
 //!   (the simulated UR5e's [`Ur5e::snapshot`]). Every step appends `(t_ns, wrench)` to a ring
 //!   buffer, keyed by the *pose's* time (the controller tick the pose belongs to), and keeps the
 //!   latest [`SurfaceField`](crate::sim::SurfaceField) when a camera needs it. It implements [`WrenchSource`](crate::truth::WrenchSource):
@@ -45,33 +45,35 @@
 //!
 //! # Cost
 //!
-//! The default physics ([`PhysicsConfig::default`]) is the sensor physics every command
-//! uses: the finite layer at 0.4 mm cells with Coulomb friction and the elastomer's relaxation,
-//! stepped at 50 Hz of clock time. One step in contact costs about 1.5–2.5 ms (release build,
-//! 2-core machine; see `rig bench run`'s "contact physics steps"). Steps sit on a grid of whole
-//! periods of clock time, and the simulated camera captures at whole multiples of its own
-//! period, so at 25 fps every frame's contact is a step the F/T also reads: 50 steps per clock
-//! second in all, and the full default plan records at about ×10 (148 s measured with
-//! `rig bench run` on a build whose `rig run` used it). `rig run` itself still uses Winkler at
-//! 250 Hz (`rig::simrig::default_physics`): see its docs for why.
+//! The default physics ([`PhysicsConfig::default`], what `rig run` uses) is the sensor physics
+//! every command uses: the finite layer at 0.4 mm cells with Coulomb friction and the
+//! elastomer's relaxation, stepped at 50 Hz of clock time. One step in contact costs about
+//! 1.5–2.5 ms (release build, 2-core machine; see `rig bench run`'s "contact physics steps").
+//! Steps sit on a grid of whole periods of clock time, and the simulated camera captures at
+//! whole multiples of its own period, so at 25 fps every frame's contact is a step. The physics
+//! task paces the simulated clock ([`PHYSICS_PACER_LEAD`]): simulated time runs at most a tick
+//! and 2 ms of real time past the newest step, so a busy host slows the simulation instead of
+//! letting the F/T twins run ahead of the contact.
 //!
 //! # Timing limits
 //!
 //! With [`PhysicsConfig::on_demand`] (the default), a frame asked for at a time past the
 //! newest physics step first steps the physics through the grid ticks up to that time, and at
 //! that time itself if it is off the grid, at the poses the controller had then
-//! ([`Ur5e::tip_pose_at`]); the physics task replays ticks it woke too late for. A frame thus
-//! shows the contact of its own capture time however late its task ran on a busy host
-//! ([`PhysicsStats::max_field_age_ns`] says how stale the images were). The F/T twins step the
-//! grid ticks up to their sample time too, and read the wrench past the newest tick (under one
-//! period, 20 ms) extrapolated along the last two ticks: a solve per F/T sample would be a
-//! solve per millisecond. Where the motion changes within a period (a stage starting) the
-//! extrapolation misses the change until the next tick: up to a few hundredths of a newton
-//! for the 5 mm/s lift-off (`rig bench run`'s "max |paired − true|"). At the plan's speeds the extrapolation error is below the Nano17's
-//! noise except for a tick after a stop or reversal (`rig bench run`'s "max |paired − true|").
-//! Steps that cost milliseconds run off the async workers (`block_in_place`), so the
-//! controller and RTDE tasks are never held up by a solve. Without on-demand stepping, the
-//! wrench past the newest step is the newest one (held, not extrapolated).
+//! ([`Ur5e::tip_pose_at`]). A frame thus shows the contact of its own capture time however late
+//! its task ran ([`PhysicsStats::max_field_age_ns`] says how stale the images were).
+//!
+//! The F/T twins sample at 1 kHz, twenty times per step, so they read the wrench between steps
+//! without solving: the pose of the sample is read off the line through the last two steps'
+//! poses and the wrench taken along that line, which follows the motion's own speed (ramps
+//! included). Where the pose leaves that line (a stage starting, a reversal, the first touch)
+//! or runs more than two step spacings past it, the F/T's read steps the physics at its own
+//! pose, after the grid's ticks before it ([`PhysicsStats::off_grid_steps`]: a handful per
+//! stage). While the indenter rests, the wrench is extrapolated in time along the last two
+//! steps (relaxation). A cheap model (Winkler, Hertz) simply steps at every F/T sample's time.
+//! Steps that cost milliseconds run off the async workers (`block_in_place`), so the controller
+//! and RTDE tasks are never held up by a solve. Without on-demand stepping, the wrench past the
+//! newest step is the newest one (held).
 
 mod physics;
 

@@ -27,6 +27,9 @@ use crate::truth::WrenchSource;
 /// The F/T twins read the wrench interpolated linearly between them (20 µm of motion apart at
 /// the plan's 1 mm/s).
 pub const DEFAULT_PHYSICS_RATE_HZ: f64 = 50.0;
+/// How far simulated time may run ahead of the contact physics, in real time, beyond the tick
+/// after its newest step (see [`ContactPhysics::spawn`]): 2 ms, 20 ms of clock time at ×10.
+pub const PHYSICS_PACER_LEAD: Duration = Duration::from_millis(2);
 /// Default number of `(t_ns, wrench)` samples kept: 4 s at 250 Hz.
 pub const DEFAULT_HISTORY: usize = 1000;
 
@@ -124,6 +127,10 @@ pub struct PhysicsStats {
     /// and the pose time of the field it got, ns: how stale the contact in a simulated image
     /// was. A few ms (one controller tick plus the field spacing) when the physics keeps up.
     pub max_field_age_ns: u64,
+    /// Steps an F/T sample of the layer model asked for at its own pose, off the clock's grid:
+    /// the motion had left the line of the last two steps (a stage start, a reversal, the
+    /// first touch) or run past it. A handful per stage.
+    pub off_grid_steps: u64,
 }
 
 /// The TCP (indenter tip) in the sensor surface frame, as the simulator's pose: contact point
@@ -161,11 +168,39 @@ struct SolverState {
 /// The results side: held only to copy a sample in or out, so a long solve never blocks the
 /// F/T mock's `wrench_at` (it runs on an async worker).
 struct Results {
-    ring: VecDeque<(u64, Wrench)>,
+    ring: VecDeque<Sample>,
     last: Wrench,
     /// The newest surface fields with their pose times, oldest first.
     fields: VecDeque<(u64, Arc<SurfaceField>)>,
 }
+
+/// One physics step in the buffer: the pose time, the wrench, and where the indenter was (its
+/// axis in the surface frame and its depth, mm; the depth is negative out of contact).
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    t_ns: u64,
+    w: Wrench,
+    at_mm: [f64; 3],
+}
+
+/// The indenter's position in the surface frame as a [`Sample`] stores it.
+fn position(p: &IndenterPose) -> [f64; 3] {
+    [
+        p.contact_mm[0] + p.shear_mm[0],
+        p.contact_mm[1] + p.shear_mm[1],
+        p.depth_mm,
+    ]
+}
+
+/// Motion below this (mm) is rest: the simulated UR5e holds its pose exactly when stopped.
+const REST_MM: f64 = 1e-6;
+/// A pose further than this (mm) off the line through the last two steps' poses has changed
+/// direction (a stage start); a straight `movel` stays on it to rounding.
+const OFF_LINE_MM: f64 = 1e-4;
+/// How far past the newest step, in units of the last two steps' spacing, a pose may be read
+/// off their line: the error of that linear reading grows with the distance, and the solver's
+/// own noise in the difference of the two steps is multiplied by it.
+const MAX_LINE_STEPS: f64 = 2.0;
 
 /// Surface fields kept for [`ContactPhysics::field_at`] (the camera renders a frame a little
 /// after its capture time): at most one per [`FIELD_SPACING_NS`], so 256 of them cover 0.5 s
@@ -188,6 +223,7 @@ struct Inner {
     errors: AtomicU64,
     skipped_ticks: AtomicU64,
     max_field_age_ns: AtomicU64,
+    off_grid_steps: AtomicU64,
     /// The pose source of [`ContactPhysics::spawn`], for on-demand steps.
     pose_source: Mutex<Option<PoseSource>>,
 }
@@ -251,6 +287,7 @@ impl ContactPhysics {
                 errors: AtomicU64::new(0),
                 skipped_ticks: AtomicU64::new(0),
                 max_field_age_ns: AtomicU64::new(0),
+                off_grid_steps: AtomicU64::new(0),
                 pose_source: Mutex::new(None),
             }),
         })
@@ -334,7 +371,11 @@ impl ContactPhysics {
         if res.ring.len() == self.inner.config.history {
             res.ring.pop_front();
         }
-        res.ring.push_back((t_ns, w));
+        res.ring.push_back(Sample {
+            t_ns,
+            w,
+            at_mm: position(&raw),
+        });
         if let Some(f) = new_field
             && res
                 .fields
@@ -418,7 +459,7 @@ impl ContactPhysics {
 
     /// The newest `(t_ns, wrench)` sample.
     pub fn latest(&self) -> Option<(u64, Wrench)> {
-        lock(&self.inner.results).ring.back().copied()
+        lock(&self.inner.results).ring.back().map(|s| (s.t_ns, s.w))
     }
 
     pub fn stats(&self) -> PhysicsStats {
@@ -428,6 +469,7 @@ impl ContactPhysics {
             errors: self.inner.errors.load(Ordering::Relaxed),
             skipped_ticks: self.inner.skipped_ticks.load(Ordering::Relaxed),
             max_field_age_ns: self.inner.max_field_age_ns.load(Ordering::Relaxed),
+            off_grid_steps: self.inner.off_grid_steps.load(Ordering::Relaxed),
         }
     }
 
@@ -447,6 +489,12 @@ impl ContactPhysics {
         tokio::spawn(async move {
             let mut ticker = clock.ticker(period);
             let period_ns = ticker.period_ns().max(1);
+            // Simulated time waits for the physics: at most a tick and PHYSICS_PACER_LEAD of
+            // real time past the newest step, so the F/T twins never read far past it.
+            let pacer = clock.pacer("simulated contact physics", PHYSICS_PACER_LEAD);
+            // (Reported in tick times, not the steps' pose times: a pose source whose times
+            // lag would otherwise hold the clock before the next tick, for ever.)
+            pacer.reached(clock.now_ns() + period_ns);
             let mut last_step: Option<u64> = None;
             loop {
                 let due = ticker.tick().await;
@@ -489,67 +537,179 @@ impl ContactPhysics {
                     tracing::error!("contact physics step panicked: {e}");
                     return;
                 }
+                pacer.reached(newest + period_ns);
             }
         })
     }
 }
 
+/// What [`ContactPhysics::read_ahead`] can say about a time past the newest step.
+enum Ahead {
+    /// The wrench, read off the motion's line (or zero out of contact).
+    Wrench(Wrench),
+    /// The buffer answers: the time is covered, or the indenter rests and only relaxation
+    /// changes the wrench (extrapolated in time).
+    Buffer,
+    /// The motion left the line of the last two steps: solve at the sample's pose.
+    Solve,
+}
+
+impl ContactPhysics {
+    /// The wrench of the layer model at an F/T sample time `t_ns` past the newest step, without
+    /// a solve per sample: the pose the robot had then is read off the line through the last
+    /// two steps' poses, and the wrench interpolated (or extrapolated, up to
+    /// [`MAX_LINE_STEPS`]) along that line. This follows the motion's speed exactly, ramps
+    /// included, where an extrapolation in time would not. Where the pose is off that line (a
+    /// stage starting, a reversal, the first touch), the physics steps at the sample's pose
+    /// (off the clock's grid, counted in [`PhysicsStats::off_grid_steps`]): a handful of solves
+    /// per stage start. `None`: the buffer answers (see [`Ahead::Buffer`]).
+    fn read_ahead(&self, t_ns: u64) -> Option<Wrench> {
+        if !self.inner.config.on_demand {
+            return None;
+        }
+        let src = lock(&self.inner.pose_source).clone()?;
+        let (_, tcp) = src(t_ns);
+        let at = position(&indenter_pose(&self.inner.surface_frame, &tcp));
+        for _ in 0..2 {
+            let ahead = {
+                let res = lock(&self.inner.results);
+                read_off_line(&res.ring, t_ns, &at)
+            };
+            match ahead {
+                Ahead::Wrench(w) => return Some(w),
+                Ahead::Buffer => return None,
+                Ahead::Solve => {
+                    // The grid's ticks up to the sample first (the camera's frames are on
+                    // them; the physics task's pacer keeps them to a tick or two), then the
+                    // sample's own pose.
+                    self.inner.off_grid_steps.fetch_add(1, Ordering::Relaxed);
+                    self.catch_up(t_ns, true);
+                }
+            }
+        }
+        None
+    }
+
+    /// Linear interpolation in the buffer, clamped at the start; past the newest step see
+    /// [`WrenchSource::wrench_at`].
+    fn buffered(&self, t_ns: u64) -> Wrench {
+        let res = lock(&self.inner.results);
+        let ring = &res.ring;
+        let Some(first) = ring.front() else {
+            return Wrench::default();
+        };
+        let last = ring.back().expect("non-empty");
+        if t_ns <= first.t_ns {
+            return first.w;
+        }
+        if t_ns >= last.t_ns {
+            if !self.inner.config.on_demand || t_ns == last.t_ns {
+                return last.w;
+            }
+            let half_period = (0.5e9 / self.inner.config.rate_hz) as u64;
+            let Some(before) = ring
+                .iter()
+                .rev()
+                .find(|s| s.t_ns + half_period <= last.t_ns)
+            else {
+                return last.w;
+            };
+            let s = ((t_ns - last.t_ns) as f64 / (last.t_ns - before.t_ns) as f64).min(2.0);
+            return along(&before.w, &last.w, 1.0 + s);
+        }
+        // First sample strictly after t_ns; 1 ≤ i < len here.
+        let i = ring.partition_point(|s| s.t_ns <= t_ns);
+        let (a, b) = (&ring[i - 1], &ring[i]);
+        let s = (t_ns - a.t_ns) as f64 / (b.t_ns - a.t_ns) as f64;
+        along(&a.w, &b.w, s)
+    }
+}
+
+/// `a + s·(b − a)`: between `a` and `b` for `s ∈ [0, 1]`; past `b` (`s > 1`) an extrapolation
+/// that never goes past the unloaded gel (pressing gives Fz < 0: extrapolating an unloading
+/// past zero is lift-off, and an unloaded `b` stays unloaded).
+fn along(a: &Wrench, b: &Wrench, s: f64) -> Wrench {
+    let (a, b) = (a.to_array(), b.to_array());
+    let out: [f64; 6] = std::array::from_fn(|k| a[k] + s * (b[k] - a[k]));
+    if s > 1.0 && (b[2] < 0.0 && out[2] >= 0.0 || b[2] == 0.0) {
+        return if b[2] == 0.0 {
+            Wrench::from_array(b)
+        } else {
+            Wrench::default()
+        };
+    }
+    Wrench::from_array(out)
+}
+
+/// The decision of [`ContactPhysics::read_ahead`] for an F/T sample at `t_ns` with the
+/// indenter at `at` (see [`Sample::at_mm`]), from the buffer `ring`.
+fn read_off_line(ring: &VecDeque<Sample>, t_ns: u64, at: &[f64; 3]) -> Ahead {
+    let Some(s1) = ring.back() else {
+        return if at[2] > 0.0 {
+            Ahead::Solve
+        } else {
+            Ahead::Wrench(Wrench::default())
+        };
+    };
+    if s1.t_ns >= t_ns {
+        return Ahead::Buffer;
+    }
+    if at[2] <= 0.0 {
+        // Out of contact: no force, exactly.
+        return Ahead::Wrench(Wrench::default());
+    }
+    if s1.at_mm[2] <= 0.0 {
+        // The first touch since the newest step.
+        return Ahead::Solve;
+    }
+    let sub = |p: &[f64; 3], q: &[f64; 3]| -> [f64; 3] { std::array::from_fn(|k| p[k] - q[k]) };
+    let dot = |p: &[f64; 3], q: &[f64; 3]| -> f64 { (0..3).map(|k| p[k] * q[k]).sum() };
+    let v = sub(at, &s1.at_mm);
+    let s0 = ring.len().checked_sub(2).map(|i| &ring[i]);
+    let d = s0.map(|s0| sub(&s1.at_mm, &s0.at_mm));
+    let resting = |x: &[f64; 3]| dot(x, x).sqrt() <= REST_MM;
+    if resting(&v) {
+        return match d {
+            // At rest since the step before: only relaxation moves the wrench.
+            Some(d) if resting(&d) => Ahead::Buffer,
+            // Between two controller ticks of a motion: the newest step is this pose's.
+            _ => Ahead::Wrench(s1.w),
+        };
+    }
+    let (Some(s0), Some(d)) = (s0, d) else {
+        return Ahead::Solve;
+    };
+    if resting(&d) {
+        // Starting to move.
+        return Ahead::Solve;
+    }
+    let s = dot(&v, &d) / dot(&d, &d);
+    let off: [f64; 3] = std::array::from_fn(|k| v[k] - s * d[k]);
+    if !(0.0..=MAX_LINE_STEPS).contains(&s) || dot(&off, &off).sqrt() > OFF_LINE_MM {
+        return Ahead::Solve;
+    }
+    Ahead::Wrench(along(&s0.w, &s1.w, 1.0 + s))
+}
+
 impl WrenchSource for ContactPhysics {
     /// Linear interpolation in the buffer, clamped at the start; zero before the first step.
-    /// Past the newest step (at most one physics period, with
-    /// [`PhysicsConfig::on_demand`]), the wrench is extrapolated along the last two steps at
-    /// least half a period apart, and never past the unloaded gel: a normal force that would
-    /// change sign gives zero. Without on-demand stepping it is held.
+    /// Past the newest step, with [`PhysicsConfig::on_demand`]: a cheap model (Winkler,
+    /// Hertz: tens of µs a step) steps at the sample's own time, so the F/T reads the exact
+    /// contact; the layer model reads the pose off the motion's line (see
+    /// `ContactPhysics::read_ahead`), and while the indenter rests extrapolates in time
+    /// along the last two steps at least half a period apart (relaxation), never past the
+    /// unloaded gel. Without on-demand stepping the newest wrench is held.
     fn wrench_at(&self, t_ns: u64) -> Wrench {
-        // A cheap model (Winkler, Hertz: tens of µs) steps at the sample's own time, so the
-        // F/T reads the exact contact; the layer model steps the grid and extrapolates.
         let cheap = matches!(
             self.inner.config.contact,
             ContactModel::Winkler | ContactModel::Hertz
         );
-        self.catch_up(t_ns, cheap);
-        let res = lock(&self.inner.results);
-        let ring = &res.ring;
-        let Some(&(t_first, w_first)) = ring.front() else {
-            return Wrench::default();
-        };
-        let &(t_last, w_last) = ring.back().expect("non-empty");
-        if t_ns <= t_first {
-            return w_first;
+        if cheap {
+            self.catch_up(t_ns, true);
+        } else if let Some(w) = self.read_ahead(t_ns) {
+            return w;
         }
-        if t_ns >= t_last {
-            if !self.inner.config.on_demand || t_ns == t_last {
-                return w_last;
-            }
-            let half_period = (0.5e9 / self.inner.config.rate_hz) as u64;
-            let Some(&(t0, w0)) = ring.iter().rev().find(|(t, _)| *t + half_period <= t_last)
-            else {
-                return w_last;
-            };
-            let s = ((t_ns - t_last) as f64 / (t_last - t0) as f64).min(2.0);
-            let (a, b) = (w0.to_array(), w_last.to_array());
-            let out: [f64; 6] = std::array::from_fn(|k| b[k] + s * (b[k] - a[k]));
-            // Pressing gives Fz < 0: extrapolating an unloading past zero is lift-off.
-            if out[2] >= 0.0 && b[2] < 0.0 || b[2] == 0.0 {
-                return if b[2] == 0.0 {
-                    w_last
-                } else {
-                    Wrench::default()
-                };
-            }
-            return Wrench::from_array(out);
-        }
-        // First sample strictly after t_ns; 1 ≤ i < len here.
-        let i = ring.partition_point(|&(t, _)| t <= t_ns);
-        let (t0, w0) = ring[i - 1];
-        let (t1, w1) = ring[i];
-        let s = (t_ns - t0) as f64 / (t1 - t0) as f64;
-        let (a, b) = (w0.to_array(), w1.to_array());
-        let mut out = [0.0; 6];
-        for k in 0..6 {
-            out[k] = a[k] + s * (b[k] - a[k]);
-        }
-        Wrench::from_array(out)
+        self.buffered(t_ns)
     }
 }
 
@@ -612,4 +772,116 @@ fn off_the_async_workers<R>(f: impl FnOnce() -> R) -> R {
 
 pub(super) fn invalid(msg: String) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, msg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(t_ms: u64, fz: f64, at_mm: [f64; 3]) -> Sample {
+        Sample {
+            t_ns: t_ms * 1_000_000,
+            w: Wrench {
+                force_n: [0.1 * fz, 0.0, fz],
+                torque_nmm: [0.0; 3],
+            },
+            at_mm,
+        }
+    }
+
+    fn fz(a: Ahead) -> Option<f64> {
+        match a {
+            Ahead::Wrench(w) => Some(w.force_n[2]),
+            _ => None,
+        }
+    }
+
+    /// Pressing down at 40 µm per 20 ms step: −1.0 N then −1.2 N.
+    fn pressing() -> VecDeque<Sample> {
+        VecDeque::from(vec![
+            sample(0, -1.0, [1.0, 2.0, 0.40]),
+            sample(20, -1.2, [1.0, 2.0, 0.44]),
+        ])
+    }
+
+    #[test]
+    fn a_pose_on_the_line_is_read_off_it_at_its_own_distance() {
+        let ring = pressing();
+        // 10 µm further down (a slower ramp than the steps' 2 mm/s): a quarter of a step on.
+        let f = fz(read_off_line(&ring, 30_000_000, &[1.0, 2.0, 0.45])).unwrap();
+        assert!((f + 1.25).abs() < 1e-12, "{f}");
+        // The same pose as the newest step, later (between controller ticks): its wrench.
+        let f = fz(read_off_line(&ring, 21_000_000, &[1.0, 2.0, 0.44])).unwrap();
+        assert_eq!(f, -1.2);
+    }
+
+    #[test]
+    fn leaving_the_line_reversing_or_running_far_past_it_asks_for_a_solve() {
+        let ring = pressing();
+        let t = 25_000_000;
+        // A shear starting: off the line by 1 µm.
+        assert!(matches!(
+            read_off_line(&ring, t, &[1.001, 2.0, 0.44]),
+            Ahead::Solve
+        ));
+        // Going back up the line (a reversal).
+        assert!(matches!(
+            read_off_line(&ring, t, &[1.0, 2.0, 0.439]),
+            Ahead::Solve
+        ));
+        // More than two step spacings past the newest step.
+        assert!(matches!(
+            read_off_line(&ring, t, &[1.0, 2.0, 0.53]),
+            Ahead::Solve
+        ));
+        // The first touch since the newest step, which was out of contact.
+        let air = VecDeque::from(vec![
+            sample(0, 0.0, [1.0, 2.0, -0.04]),
+            sample(20, 0.0, [1.0, 2.0, -0.001]),
+        ]);
+        assert!(matches!(
+            read_off_line(&air, t, &[1.0, 2.0, 0.02]),
+            Ahead::Solve
+        ));
+        // Starting to move after a rest.
+        let rest = VecDeque::from(vec![
+            sample(0, -1.0, [1.0, 2.0, 0.44]),
+            sample(20, -0.98, [1.0, 2.0, 0.44]),
+        ]);
+        assert!(matches!(
+            read_off_line(&rest, t, &[1.0, 2.0, 0.4399]),
+            Ahead::Solve
+        ));
+        // Still resting: relaxation, from the buffer in time.
+        assert!(matches!(
+            read_off_line(&rest, t, &[1.0, 2.0, 0.44]),
+            Ahead::Buffer
+        ));
+    }
+
+    #[test]
+    fn out_of_contact_is_zero_and_a_covered_time_is_the_buffers() {
+        let ring = pressing();
+        assert_eq!(
+            fz(read_off_line(&ring, 25_000_000, &[1.0, 2.0, -0.01])),
+            Some(0.0)
+        );
+        assert!(matches!(
+            read_off_line(&ring, 20_000_000, &[1.0, 2.0, 0.44]),
+            Ahead::Buffer
+        ));
+    }
+
+    #[test]
+    fn an_unloading_read_off_the_line_stops_at_zero() {
+        // Lifting: −0.2 N then −0.05 N 40 µm higher; 60 µm higher still is past lift-off.
+        let ring = VecDeque::from(vec![
+            sample(0, -0.2, [0.0, 0.0, 0.10]),
+            sample(20, -0.05, [0.0, 0.0, 0.06]),
+        ]);
+        assert_eq!(
+            fz(read_off_line(&ring, 30_000_000, &[0.0, 0.0, 0.03])),
+            Some(0.0)
+        );
+    }
 }
