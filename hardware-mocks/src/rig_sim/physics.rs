@@ -127,9 +127,10 @@ pub struct PhysicsStats {
     /// and the pose time of the field it got, ns: how stale the contact in a simulated image
     /// was. A few ms (one controller tick plus the field spacing) when the physics keeps up.
     pub max_field_age_ns: u64,
-    /// Steps an F/T sample of the layer model asked for at its own pose, off the clock's grid:
-    /// the motion had left the line of the last two steps (a stage start, a reversal, the
-    /// first touch) or run past it. A handful per stage.
+    /// F/T reads of the layer model that asked the physics to step at their own pose, off the
+    /// clock's grid: the motion had left the line of the last two steps (a stage start, a
+    /// reversal, the first touch) or run past it. A read may find the step already made (by
+    /// another read at the same controller tick), so this counts requests, not steps.
     pub off_grid_steps: u64,
 }
 
@@ -561,8 +562,8 @@ impl ContactPhysics {
     /// [`MAX_LINE_STEPS`]) along that line. This follows the motion's speed exactly, ramps
     /// included, where an extrapolation in time would not. Where the pose is off that line (a
     /// stage starting, a reversal, the first touch), the physics steps at the sample's pose
-    /// (off the clock's grid, counted in [`PhysicsStats::off_grid_steps`]): a handful of solves
-    /// per stage start. `None`: the buffer answers (see [`Ahead::Buffer`]).
+    /// (off the clock's grid, counted in [`PhysicsStats::off_grid_steps`]): several solves per
+    /// stage start, as the line's baseline grows. `None`: the buffer answers (see [`Ahead::Buffer`]).
     fn read_ahead(&self, t_ns: u64) -> Option<Wrench> {
         if !self.inner.config.on_demand {
             return None;

@@ -122,6 +122,18 @@ impl NetFtClient {
     }
 
     /// Waits until every record the mock sent has arrived, then takes them.
+    /// Waits until the mock has sent at least `n` records since the last drain (its task
+    /// samples when it next wakes, which on a loaded host may be after the test's next step),
+    /// then drains them all.
+    async fn drain_at_least(&self, stats: &MockStats, n: u64) -> Vec<RdtRecord> {
+        let taken = self.taken.load(std::sync::atomic::Ordering::Relaxed);
+        eventually("the F/T to send its records", || {
+            MockStats::get(&stats.sent) >= taken + n
+        })
+        .await;
+        self.drain(stats).await
+    }
+
     async fn drain(&self, stats: &MockStats) -> Vec<RdtRecord> {
         eventually("every sent record to arrive", || {
             self.received() == MockStats::get(&stats.sent)
@@ -276,7 +288,8 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     physics_reaches(rig.physics(), t_above).await;
     assert_eq!(rig.physics().wrench_at(t_above), Wrench::default());
     assert_eq!(rig.physics().wrench_at(t_above / 2), Wrench::default());
-    let tare_recs = netft.drain(&stats).await;
+    // 0.2 s at 1 kHz: about 200 records.
+    let tare_recs = netft.drain_at_least(&stats, 150).await;
     assert!(tare_recs.len() >= 150, "{}", tare_recs.len());
     let tare = NetFtClient::mean(&tare_recs[20..]);
     eventually("a camera frame out of contact", || {
@@ -362,7 +375,7 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
         "physics vs static, default grid: {e_default}"
     );
 
-    let recs = netft.drain(&stats).await;
+    let recs = netft.drain_at_least(&stats, 150).await;
     assert!(recs.len() >= 150, "{}", recs.len());
     let mean = NetFtClient::mean(&recs[20..]);
     let read = [mean[0] - tare[0], mean[1] - tare[1], mean[2] - tare[2]];

@@ -78,10 +78,11 @@ pub fn table(s: &RunSummary) -> String {
             "contact physics steps",
             s.sim_physics.map_or("-".into(), |p| {
                 format!(
-                    "{} ({} in contact, {:.0} per clock s)",
+                    "{} ({} in contact, {:.0} per clock s; {} F/T reads asked for a step off the grid)",
                     p.steps,
                     p.contact_steps,
-                    p.steps as f64 / s.clock_time_s.max(1e-9)
+                    p.steps as f64 / s.clock_time_s.max(1e-9),
+                    p.off_grid_steps
                 )
             }),
         ),
