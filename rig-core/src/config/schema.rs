@@ -143,9 +143,9 @@ pub struct ElastomerConfig {
     pub size_y_mm: f64,
     /// Gel thickness (paper: 3 mm); no plan may press deeper.
     pub thickness_mm: f64,
-    /// Young's (relaxed) modulus. Assumed for XP-565 mixed A:B = 1:15 (a soft silicone, roughly
-    /// 0.1-0.3 MPa); not measured. (With the finite-layer physics, 0.275 MPa and 2 mm slides give
-    /// the paper's work range over the default plan: `rig sim forces`, see the issue notes.)
+    /// Young's (relaxed) modulus. No value is published for XP-565 mixed A:B = 1:15; 0.275 MPa is
+    /// calibrated so that the finite-layer physics gives the paper's work range over the default
+    /// plan (2 mm slides): |Fz| up to 16 N, shear up to 5 N (`rig sim forces`; sim-source.toml).
     pub youngs_modulus_mpa: f64,
     /// Poisson's ratio; silicone is nearly incompressible (assumed 0.49).
     pub poisson_ratio: f64,
@@ -168,7 +168,7 @@ impl Default for ElastomerConfig {
             size_x_mm: 10.0,
             size_y_mm: 8.0,
             thickness_mm: 3.0,
-            youngs_modulus_mpa: 0.2,
+            youngs_modulus_mpa: 0.275,
             poisson_ratio: 0.49,
             friction_coefficient: 1.0,
             instant_modulus_ratio: 1.25,
@@ -201,7 +201,8 @@ pub struct PlanConfig {
     /// (paper: 12 directions, 30° apart).
     pub directions_deg: Vec<f64>,
     /// How far the indenter slides along the direction at depth, mm. The paper does not state it;
-    /// 1 mm keeps every default point and direction on the gel and mostly in partial slip.
+    /// 2 mm is the longest slide that keeps every default point and direction on the gel, and
+    /// brings the shear forces to the paper's range (small contacts reach gross slip).
     pub shear_distance_mm: f64,
     /// Start and end height of every trajectory above the undeformed surface, mm.
     pub approach_height_mm: f64,
@@ -225,15 +226,15 @@ impl Default for PlanConfig {
             ],
             depths_mm: vec![0.2, 0.4, 0.6, 0.8],
             directions_deg: (0..12).map(|i| f64::from(i) * 30.0).collect(),
-            shear_distance_mm: 1.0,
+            shear_distance_mm: 2.0,
             approach_height_mm: 2.0,
             down: StageMotion {
                 speed_mm_s: 1.0,
                 accel_mm_s2: 10.0,
             },
             shear: StageMotion {
-                speed_mm_s: 1.0,
-                accel_mm_s2: 10.0,
+                speed_mm_s: 2.0,
+                accel_mm_s2: 20.0,
             },
             up: StageMotion {
                 speed_mm_s: 5.0,

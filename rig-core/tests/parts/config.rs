@@ -62,7 +62,16 @@ fn sim_target_differs_only_in_identity() {
     assert_eq!(t.sensor.surface_frame, s.sensor.surface_frame);
     assert_eq!(t.plan, s.plan);
     assert_eq!(t.safety, s.safety);
-    assert_eq!(t.elastomer, s.elastomer);
+    // The same recipe, another batch: only the modulus differs, by 5 %.
+    assert_eq!(
+        rig_core::config::ElastomerConfig {
+            youngs_modulus_mpa: s.elastomer.youngs_modulus_mpa,
+            ..t.elastomer.clone()
+        },
+        s.elastomer
+    );
+    let ratio = t.elastomer.youngs_modulus_mpa / s.elastomer.youngs_modulus_mpa;
+    assert!((ratio - 1.0545).abs() < 1e-3, "{ratio}");
 }
 
 #[test]
@@ -103,7 +112,7 @@ fn minimal_config_fills_defaults() {
     assert_eq!(c.safety.max_depth_mm, 1.0);
     assert!(c.force_sensor.is_none());
     assert!(c.camera.is_none());
-    assert_eq!(c.plan.shear_distance_mm, 1.0);
+    assert_eq!(c.plan.shear_distance_mm, 2.0);
     assert_eq!(c.plan.approach_height_mm, 2.0);
 }
 
@@ -129,7 +138,7 @@ fn depth_beyond_safety_limit_names_the_index() {
 
 #[test]
 fn unknown_key_is_rejected_with_its_path() {
-    let e = error_of(&sim_with("shear_distance_mm = 1.0", "shear_distance = 1.0"));
+    let e = error_of(&sim_with("shear_distance_mm = 2.0", "shear_distance = 2.0"));
     let msg = e.to_string();
     assert!(msg.contains("plan.shear_distance"), "{msg}");
     assert!(msg.contains("unknown field"), "{msg}");
@@ -233,7 +242,7 @@ fn points_and_shear_paths_stay_on_the_gel() {
     );
 
     let e = error_of(&sim_with(
-        "shear_distance_mm = 1.0",
+        "shear_distance_mm = 2.0",
         "shear_distance_mm = 2.5",
     ));
     assert!(
