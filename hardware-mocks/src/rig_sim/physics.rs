@@ -402,10 +402,10 @@ impl ContactPhysics {
     /// A consumer that is on time (the F/T at 1 kHz) thus never leaves a gap in the buffer
     /// while the physics task is late, and a consumer running late (a frame rendered after its
     /// capture time) finds the contact of its own instant. With a cheap model (Winkler,
-    /// Hertz) the F/T steps at its own sample time too; with the layer model it asks for ticks
-    /// only (`exact = false`) and reads the wrench between the newest tick and its sample time
-    /// extrapolated ([`WrenchSource::wrench_at`]): a solve per F/T sample would cost a solve per
-    /// millisecond.
+    /// Hertz) the F/T steps at its own sample time too; with the layer model it reads the
+    /// wrench off the motion's line without stepping, and comes here (`exact = true`) only
+    /// where the motion leaves that line (`ContactPhysics::read_ahead`): a solve per F/T
+    /// sample would cost a solve per millisecond. The physics task steps the ticks only.
     fn catch_up(&self, t_ns: u64, exact: bool) {
         if !self.inner.config.on_demand {
             return;
