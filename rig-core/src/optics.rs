@@ -16,6 +16,8 @@
 //! - `markers`: the printed dot pattern (square grid or hexagonal, spacing, dot size, offset of
 //!   the pattern, per-dot position jitter from a seed, dot colour);
 //! - `camera_offset_mm`: where the image centre sits on the gel (assembly tolerance);
+//! - `camera_rotation_deg`: how far the camera is turned about its axis against the gel
+//!   (assembly tolerance; the LEDs turn with it, being mounted in the same housing);
 //! - `effects`: what the images show beyond shading (markers, shadows, blur, vignetting,
 //!   noise), so each sensor records exactly the effects its camera has.
 //!
@@ -56,6 +58,10 @@ pub struct OpticsConfig {
     /// tolerance: a real sensor's camera is rarely centred on its gel to better than a few
     /// tenths of a mm).
     pub camera_offset_mm: [f64; 2],
+    /// How far the camera (with its LEDs, in the same housing) is turned about its axis against
+    /// the gel, degrees, counter-clockwise seen from the camera: the image's x axis lies along
+    /// the gel's x turned by this angle. Assembly tolerance, a degree or two on a real sensor.
+    pub camera_rotation_deg: f64,
     /// Which image effects the simulated camera renders (`[optics.effects]`).
     pub effects: EffectsConfig,
 }
@@ -176,6 +182,7 @@ impl Default for OpticsConfig {
             background: BackgroundConfig::default(),
             markers: MarkerConfig::default(),
             camera_offset_mm: [0.0, 0.0],
+            camera_rotation_deg: 0.0,
             effects: EffectsConfig::default(),
         }
     }
@@ -309,6 +316,13 @@ impl OpticsConfig {
                 ),
             );
         }
+        let r = self.camera_rotation_deg;
+        if !(r.is_finite() && r.abs() <= 45.0) {
+            push(
+                "optics.camera_rotation_deg".into(),
+                format!("{r:?} must be a finite angle within ±45 degrees"),
+            );
+        }
         let e = &self.effects;
         for (key, v, max) in [
             ("blur_sigma_px", e.blur_sigma_px, 10.0),
@@ -429,6 +443,7 @@ mod tests {
         o.markers.dot_diameter_mm = 2.0;
         o.background.uneven = 1.0;
         o.camera_offset_mm = [0.2, f64::INFINITY];
+        o.camera_rotation_deg = 90.0;
         o.effects.noise_sigma = -1.0;
         o.effects.vignetting = 1.0;
         let keys: Vec<String> = o.problems().into_iter().map(|p| p.key).collect();
@@ -440,6 +455,7 @@ mod tests {
                 "optics.leds[2].rgb",
                 "optics.background.uneven",
                 "optics.camera_offset_mm",
+                "optics.camera_rotation_deg",
                 "optics.effects.noise_sigma",
                 "optics.effects.vignetting",
                 "optics.markers.dot_diameter_mm",

@@ -158,6 +158,70 @@ fn markers_move_with_the_tangential_displacement() {
     assert!((c1[0] - c0[0] - 9.6).abs() < 0.4 && (c1[1] - c0[1] - 6.4).abs() < 0.4);
 }
 
+/// A camera turned on its axis (`optics.camera_rotation_deg`) sees the gel turned: each dot lies
+/// where the turned pixel grid puts it. Its LEDs turn with it, so a contact whose shape does not
+/// change under the turn (a sphere pressed at the image centre) looks the same as from the
+/// unturned camera: the surface's slopes are shaded in the camera's frame.
+#[test]
+fn a_turned_camera_sees_the_gel_turned_and_shades_in_its_own_frame() {
+    let straight = source_optics();
+    let turned = OpticsConfig {
+        camera_rotation_deg: 10.0,
+        ..straight.clone()
+    };
+    let with = ImageEffects {
+        markers: true,
+        ..ImageEffects::shading_only()
+    };
+    let flat = sphere_field(0.0, [0.0, 0.0]);
+    let img = render(&turned, &with, &flat, 0);
+    // A grid dot 2.7 mm right of and 1.8 mm above the centre: turned by 10°, it lands about
+    // 11 px away from where the straight camera sees it.
+    let dot = [2.7, 1.8];
+    let [u, v] = mm_to_px(&turned, dot);
+    let [us, vs] = mm_to_px(&straight, dot);
+    assert!((u - us).hypot(v - vs) > 10.0, "{u},{v} vs {us},{vs}");
+    // x' = 2.7 cos 10° + 1.8 sin 10° = 2.9716 mm, y' = −2.7 sin 10° + 1.8 cos 10° = 1.3038 mm.
+    assert!((u - (159.5 + 2.9716 / 0.03125)).abs() < 0.01, "{u}");
+    assert!((v - (119.5 - 1.3038 / 0.03125)).abs() < 0.01, "{v}");
+    let c = dark_centroid(&img, u, v, 6.0).unwrap();
+    assert!((c[0] - u).hypot(c[1] - v) < 0.3, "{c:?} vs {u},{v}");
+    // Every dot the turned camera lists lies inside its image.
+    for centre in marker_centres_mm(&turned) {
+        let [u, v] = mm_to_px(&turned, centre);
+        assert!((-0.5..319.5).contains(&u) && (-0.5..239.5).contains(&v));
+    }
+
+    // A sphere pressed at the centre, shading only: the same image from both cameras, up to
+    // the resampling (a few levels on a handful of pixels).
+    let fx = ImageEffects::shading_only();
+    let pressed = sphere_field(0.6, [0.0, 0.0]);
+    let (a, b) = (
+        render(&straight, &fx, &pressed, 0),
+        render(&turned, &fx, &pressed, 0),
+    );
+    let d = diff(&a, &b);
+    let contact = diff(&a, &background(&straight, &fx, 0))
+        .iter()
+        .filter(|&&x| x > 24)
+        .count();
+    assert!(contact > 2000, "{contact} contact pixels");
+    let off = d.iter().filter(|&&x| x > 6).count();
+    assert!(
+        off < contact / 50,
+        "{off} of {contact} contact pixels differ"
+    );
+    // (Shaded with the gel's slopes, not turned into the camera's frame, the colours would be
+    // turned 10° against the LEDs and the two would differ.) Pressed 1.5 mm off centre, the
+    // contact is seen elsewhere by the turned camera: the turn is really there.
+    let off_centre = field_of("sphere", 0.6, [1.5, 0.0]);
+    let moved = diff(
+        &render(&straight, &fx, &off_centre, 0),
+        &render(&turned, &fx, &off_centre, 0),
+    );
+    assert!(moved.iter().filter(|&&x| x > 24).count() > 1000);
+}
+
 #[test]
 fn markers_are_opt_in_and_follow_the_configured_pattern() {
     let mut optics = source_optics();

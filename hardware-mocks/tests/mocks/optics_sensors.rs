@@ -12,10 +12,12 @@ use rig_core::indenter::Indenter;
 use rig_core::optics::OpticsConfig;
 
 /// The shipped sensors, the target's camera mounted 0.3 mm off the gel centre (as a real
-/// sensor's may be: `optics.camera_offset_mm`).
+/// sensor's may be: `optics.camera_offset_mm`) and not turned, so the two images of a contact
+/// differ by a shift (the turn is tested in `optics_render`).
 fn sensors() -> (OpticsConfig, OpticsConfig) {
     let mut target = RigConfig::sim_target().optics.unwrap();
     target.camera_offset_mm = [0.25, -0.15];
+    target.camera_rotation_deg = 0.0;
     (RigConfig::sim_source().optics.unwrap(), target)
 }
 

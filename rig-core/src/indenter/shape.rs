@@ -224,6 +224,9 @@ pub struct Shape {
     bumps: Vec<Bump>,
     cos: f64,
     sin: f64,
+    /// `1/tan` of a cone's semi-angle or a wedge's half-angle (the gap per mm off the tip or
+    /// ridge), once: the contact solver asks for the gap many times a step.
+    flank: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -256,6 +259,11 @@ impl Shape {
             _ => Vec::new(),
         };
         let (sin, cos) = rotation_deg.to_radians().sin_cos();
+        let flank = match &primitive {
+            Primitive::Cone(p) => 1.0 / p.semi_angle_deg.to_radians().tan(),
+            Primitive::Wedge(p) => 1.0 / p.half_angle_deg.to_radians().tan(),
+            _ => 0.0,
+        };
         Ok(Self {
             primitive,
             center_mm,
@@ -264,6 +272,7 @@ impl Shape {
             bumps,
             cos,
             sin,
+            flank,
         })
     }
 
@@ -301,7 +310,7 @@ impl Shape {
             }
             Primitive::Cone(p) => {
                 if rho <= p.radius_mm {
-                    rho / p.semi_angle_deg.to_radians().tan()
+                    rho * self.flank
                 } else {
                     NONE
                 }
@@ -360,7 +369,7 @@ impl Shape {
             }
             Primitive::Wedge(p) => {
                 if u.abs() <= p.length_mm / 2.0 && v.abs() <= p.width_mm / 2.0 {
-                    v.abs() / p.half_angle_deg.to_radians().tan()
+                    v.abs() * self.flank
                 } else {
                     NONE
                 }

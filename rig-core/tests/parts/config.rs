@@ -74,6 +74,31 @@ fn sim_target_differs_only_in_identity() {
     assert!((ratio - 1.0545).abs() < 1e-3, "{ratio}");
 }
 
+/// The target sensor is another build of the same design: beside its LEDs, background and
+/// markers, its camera is mounted a fraction of a mm off centre and turned a degree or two
+/// (assembly tolerance), and it is noisier; both record their markers.
+#[test]
+fn sim_target_camera_sits_otherwise_and_is_noisier() {
+    let s = RigConfig::sim_source().optics.unwrap();
+    let t = RigConfig::sim_target().optics.unwrap();
+    assert_eq!(s.camera_offset_mm, [0.0, 0.0]);
+    assert_eq!(s.camera_rotation_deg, 0.0);
+    let off = t.camera_offset_mm[0].hypot(t.camera_offset_mm[1]);
+    assert!(off > 0.1 && off < 0.5, "{:?}", t.camera_offset_mm);
+    assert!(
+        t.camera_rotation_deg.abs() >= 0.5 && t.camera_rotation_deg.abs() <= 3.0,
+        "{}",
+        t.camera_rotation_deg
+    );
+    assert!(s.effects.markers && t.effects.markers);
+    assert!(s.effects.noise_sigma > 0.0);
+    assert!(t.effects.noise_sigma > s.effects.noise_sigma);
+    assert_eq!(
+        (s.width_px, s.height_px, s.mm_per_px),
+        (t.width_px, t.height_px, t.mm_per_px)
+    );
+}
+
 #[test]
 fn shipped_files_load_from_disk() {
     for name in ["sim-source", "sim-target", "lab-example"] {

@@ -9,6 +9,17 @@
 //! - `half-space` and `layer-thick` (the layer model with h = 500 mm): Hertz;
 //! - `layer` (the real 3 mm gel, no closed form): the finest grid of the run.
 //!
+//! Then the physics a run steps (`Effects::sensor`: the finite layer, Coulomb friction with
+//! history, relaxation) along a trajectory as the plan drives it: pressed to 0.5 mm, held, slid
+//! 1 mm along x, at the run's 50 Hz. Each row's time is the mean per step, its error the larger
+//! relative error of the peak |Fz| and the peak shear against the sensor physics on the finest
+//! grid:
+//!
+//! - `sensor` on each grid (the run's default, 0.4 mm, is marked in the plot);
+//! - `sensor, no relaxation`: the effect left off;
+//! - `half-space + friction` and `winkler + friction`: the cheaper models with the same friction
+//!   and relaxation, on the default grid.
+//!
 //! Prints a table and writes `sim.svg` (force error against time per frame, log-log) and
 //! `sim.csv` into `--out` (default `target/bench/`).
 
@@ -17,7 +28,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::simrig::sim::contact::analytic;
-use crate::simrig::sim::{ContactModel, IndenterPose, Scene, Simulator};
+use crate::simrig::sim::{ContactModel, Effects, IndenterPose, Scene, Simulator};
 use anyhow::Context;
 use clap::Args;
 use rig_core::config::ElastomerConfig;
@@ -48,8 +59,11 @@ pub struct SimBenchRow {
     pub force_n: f64,
     /// Reference force, N.
     pub reference_n: f64,
-    /// |F − F_ref| / F_ref.
+    /// |F − F_ref| / F_ref (trajectory rows: the larger of the peak |Fz|'s and the peak
+    /// shear's).
     pub rel_error: f64,
+    /// Trajectory rows: peak shear |Ft| and its reference, N.
+    pub shear_n: Option<(f64, f64)>,
 }
 
 const RADIUS_MM: f64 = 4.0;
@@ -100,6 +114,7 @@ pub fn measure(quick: bool) -> anyhow::Result<Vec<SimBenchRow>> {
             force_n: force,
             reference_n: reference,
             rel_error: (force - reference).abs() / reference,
+            shear_n: None,
         });
         Ok(())
     };
@@ -127,7 +142,117 @@ pub fn measure(quick: bool) -> anyhow::Result<Vec<SimBenchRow>> {
         r.reference_n = finest;
         r.rel_error = (r.force_n - finest).abs() / finest;
     }
+    rows.extend(measure_trajectories(quick, &sphere, &gel)?);
     Ok(rows)
+}
+
+/// The trajectory rows: the run's sensor physics on each grid, without relaxation, and the
+/// cheaper models with the same effects; errors against the sensor physics on the finest grid.
+fn measure_trajectories(
+    quick: bool,
+    sphere: &Arc<Indenter>,
+    gel: &ElastomerConfig,
+) -> anyhow::Result<Vec<SimBenchRow>> {
+    let cells: &[f64] = if quick {
+        &[0.8, 0.4]
+    } else {
+        &[0.8, 0.4, 0.2, 0.1]
+    };
+    let sensor = Effects::sensor(gel);
+    let mut runs: Vec<(&str, Effects)> = cells
+        .iter()
+        .map(|&c| {
+            (
+                "sensor",
+                Effects {
+                    cell_mm: Some(c),
+                    ..sensor.clone()
+                },
+            )
+        })
+        .collect();
+    runs.push((
+        "sensor, no relaxation",
+        Effects {
+            viscoelastic: None,
+            ..sensor.clone()
+        },
+    ));
+    for (label, model) in [
+        ("half-space + friction", ContactModel::HalfSpace),
+        ("winkler + friction", ContactModel::Winkler),
+    ] {
+        runs.push((
+            label,
+            Effects {
+                contact: model,
+                ..sensor.clone()
+            },
+        ));
+    }
+    let mut rows = Vec::new();
+    for (label, effects) in runs {
+        let (fz, ft, ms) = step_trajectory(sphere, gel, &effects)?;
+        rows.push(SimBenchRow {
+            model: label.to_owned(),
+            cell_mm: effects.cell_mm,
+            ms_per_frame: ms,
+            first_frame_ms: f64::NAN,
+            force_n: fz,
+            reference_n: f64::NAN,
+            rel_error: f64::NAN,
+            shear_n: Some((ft, f64::NAN)),
+        });
+    }
+    let finest = rows
+        .iter()
+        .filter(|r| r.model == "sensor")
+        .min_by(|a, b| a.cell_mm.partial_cmp(&b.cell_mm).expect("finite cells"))
+        .map(|r| (r.force_n, r.shear_n.map_or(f64::NAN, |s| s.0)))
+        .unwrap_or((f64::NAN, f64::NAN));
+    for r in &mut rows {
+        let ft = r.shear_n.map_or(f64::NAN, |s| s.0);
+        r.reference_n = finest.0;
+        r.shear_n = Some((ft, finest.1));
+        r.rel_error =
+            ((r.force_n - finest.0).abs() / finest.0).max((ft - finest.1).abs() / finest.1);
+    }
+    Ok(rows)
+}
+
+/// Steps one trajectory at 50 Hz (down to [`DEPTH_MM`] at 1 mm/s, held 0.1 s, a 1 mm slide
+/// along x at 1 mm/s) with `effects`: peak |Fz|, peak shear (N), mean wall time per step (ms).
+fn step_trajectory(
+    sphere: &Arc<Indenter>,
+    gel: &ElastomerConfig,
+    effects: &Effects,
+) -> anyhow::Result<(f64, f64, f64)> {
+    const DT_S: f64 = 0.02;
+    let down = (DEPTH_MM / (1.0 * DT_S)).round() as usize;
+    let slide = (1.0 / (1.0 * DT_S)).round() as usize;
+    let mut poses: Vec<(f64, f64)> = (1..=down)
+        .map(|k| (DEPTH_MM * k as f64 / down as f64, 0.0))
+        .collect();
+    poses.extend((0..5).map(|_| (DEPTH_MM, 0.0)));
+    poses.extend((1..=slide).map(|k| (DEPTH_MM, k as f64 / slide as f64)));
+    let mut scene = Scene::new(gel.clone(), sphere.clone(), IndenterPose::default());
+    scene.effects = effects.clone();
+    let mut sim = Simulator::new();
+    let (mut fz, mut ft) = (0.0_f64, 0.0_f64);
+    let t0 = Instant::now();
+    for (k, &(depth, shear)) in poses.iter().enumerate() {
+        scene.pose = IndenterPose {
+            depth_mm: depth,
+            shear_mm: [shear, 0.0],
+            ..IndenterPose::default()
+        };
+        let out = sim.step(&scene, k as f64 * DT_S)?;
+        let f = out.wrench.force_n;
+        fz = fz.max(f[2].abs());
+        ft = ft.max(f[0].hypot(f[1]));
+    }
+    let ms = t0.elapsed().as_secs_f64() * 1e3 / poses.len() as f64;
+    Ok((fz, ft, ms))
 }
 
 /// Force, first-frame time and mean warm time per frame (ms).
@@ -153,14 +278,24 @@ pub fn table(rows: &[SimBenchRow]) -> String {
          |---|---|---|---|---|---|---|\n",
     );
     for r in rows {
+        // Trajectory rows: ms per step, peak |Fz| and peak shear against the reference's.
+        let (first, force, reference) = match r.shear_n {
+            Some((ft, ft_ref)) => (
+                "stepped".to_owned(),
+                format!("{:.5} / {ft:.5}", r.force_n),
+                format!("{:.5} / {ft_ref:.5}", r.reference_n),
+            ),
+            None => (
+                format!("{:.1}", r.first_frame_ms),
+                format!("{:.5}", r.force_n),
+                format!("{:.5}", r.reference_n),
+            ),
+        };
         s.push_str(&format!(
-            "| {} | {} | {:.3} | {:.1} | {:.5} | {:.5} | {:.3}% |\n",
+            "| {} | {} | {:.3} | {first} | {force} | {reference} | {:.3}% |\n",
             r.model,
             r.cell_mm.map_or("analytic".into(), |c| c.to_string()),
             r.ms_per_frame,
-            r.first_frame_ms,
-            r.force_n,
-            r.reference_n,
             r.rel_error * 100.0
         ));
     }
@@ -194,7 +329,17 @@ pub fn plot(rows: &[SimBenchRow], path: &Path) -> anyhow::Result<()> {
             .x_desc("time per frame (ms)")
             .y_desc("relative force error")
             .draw()?;
-        let models = ["hertz", "winkler", "half-space", "layer-thick", "layer"];
+        let models = [
+            "hertz",
+            "winkler",
+            "half-space",
+            "layer-thick",
+            "layer",
+            "sensor",
+            "sensor, no relaxation",
+            "half-space + friction",
+            "winkler + friction",
+        ];
         for (i, m) in models.iter().enumerate() {
             let colour = Palette99::pick(i).to_rgba();
             let series: Vec<(f64, f64)> = rows.iter().filter(|r| r.model == *m).map(pts).collect();
@@ -211,6 +356,15 @@ pub fn plot(rows: &[SimBenchRow], path: &Path) -> anyhow::Result<()> {
                     .map(|p| Circle::new(p, 4, colour.filled())),
             )?;
         }
+        // The run's default: the sensor physics on its grid.
+        let default = rows.iter().find(|r| {
+            r.model == "sensor" && r.cell_mm == Some(crate::simrig::sim::scene::SENSOR_CELL_MM)
+        });
+        if let Some(r) = default {
+            let p = pts(r);
+            chart.draw_series([Circle::new(p, 9, BLACK.stroke_width(2))])?;
+            chart.draw_series([Text::new("run default", p, ("sans-serif", 14).into_font())])?;
+        }
         chart::legend(&mut chart)?;
         Ok(())
     })
@@ -219,16 +373,25 @@ pub fn plot(rows: &[SimBenchRow], path: &Path) -> anyhow::Result<()> {
 pub fn run(args: &SimBenchArgs) -> anyhow::Result<()> {
     let rows = measure(args.quick)?;
     println!("{}", table(&rows));
+    println!(
+        "Trajectory rows (sensor …): the run's physics stepped down, held and slid at 50 Hz; \
+         ms per step; F: peak |Fz| / peak shear; error: the larger of the two against `sensor` \
+         on the finest grid.\n"
+    );
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let svg = args.out.join("sim.svg");
     plot(&rows, &svg).with_context(|| format!("cannot write {}", svg.display()))?;
     let csv = args.out.join("sim.csv");
-    let mut text =
-        String::from("model,cell_mm,ms_per_frame,first_frame_ms,force_n,reference_n,rel_error\n");
+    let mut text = String::from(
+        "model,cell_mm,ms_per_frame,first_frame_ms,force_n,reference_n,shear_n,shear_reference_n,rel_error\n",
+    );
     for r in &rows {
+        let (ft, ft_ref) = r.shear_n.map_or((String::new(), String::new()), |(a, b)| {
+            (a.to_string(), b.to_string())
+        });
         text.push_str(&format!(
-            "{},{},{},{},{},{},{}\n",
+            "\"{}\",{},{},{},{},{},{ft},{ft_ref},{}\n",
             r.model,
             r.cell_mm.map_or(String::new(), |c| c.to_string()),
             r.ms_per_frame,

@@ -7,13 +7,16 @@ use rig_core::optics::OpticsConfig;
 
 use super::super::contact::SurfaceField;
 
-/// The pixel grid of an image over the gel.
+/// The pixel grid of an image over the gel: the camera's frame is the gel's turned by
+/// `optics.camera_rotation_deg` and shifted by `optics.camera_offset_mm`.
 pub(crate) struct Raster {
     pub width: usize,
     pub height: usize,
     pub mm_per_px: f64,
     /// The image centre on the gel, mm (`optics.camera_offset_mm`).
     pub offset_mm: [f64; 2],
+    /// Cosine and sine of the camera's rotation against the gel (`optics.camera_rotation_deg`).
+    pub rot: [f64; 2],
 }
 
 impl Raster {
@@ -27,28 +30,91 @@ impl Raster {
         let offset_mm = optics
             .camera_offset_mm
             .map(|v| if v.is_finite() { v } else { 0.0 });
+        let angle = if optics.camera_rotation_deg.is_finite() {
+            optics.camera_rotation_deg.clamp(-45.0, 45.0).to_radians()
+        } else {
+            0.0
+        };
+        let (sin, cos) = angle.sin_cos();
         Self {
             width: side(optics.width_px),
             height: side(optics.height_px),
             mm_per_px,
             offset_mm,
+            rot: if angle == 0.0 { [1.0, 0.0] } else { [cos, sin] },
         }
     }
 
-    pub fn x_mm(&self, u: usize) -> f64 {
-        (u as f64 + 0.5 - self.width as f64 / 2.0) * self.mm_per_px + self.offset_mm[0]
+    /// Whether the camera's axes are the gel's (no rotation): pixel columns then share an x
+    /// and rows a y, and resampling is separable.
+    pub fn aligned(&self) -> bool {
+        self.rot == [1.0, 0.0]
     }
 
-    pub fn y_mm(&self, v: usize) -> f64 {
-        (self.height as f64 / 2.0 - v as f64 - 0.5) * self.mm_per_px + self.offset_mm[1]
+    /// Camera-frame position of column `u`'s centre, mm from the image centre.
+    pub fn cam_x(&self, u: usize) -> f64 {
+        (u as f64 + 0.5 - self.width as f64 / 2.0) * self.mm_per_px
     }
 
-    /// Fractional pixel position (column, row) of a surface point, mm: the inverse of
-    /// [`Self::x_mm`], [`Self::y_mm`].
-    pub fn px_of(&self, x_mm: f64, y_mm: f64) -> [f64; 2] {
+    /// Camera-frame position of row `v`'s centre, mm from the image centre (row 0 at the top,
+    /// the camera's +y).
+    pub fn cam_y(&self, v: usize) -> f64 {
+        (self.height as f64 / 2.0 - v as f64 - 0.5) * self.mm_per_px
+    }
+
+    /// Where on the gel a camera-frame point (mm from the image centre) lies, mm.
+    pub fn gel_of_cam(&self, a: f64, b: f64) -> [f64; 2] {
+        let [c, s] = self.rot;
         [
-            (x_mm - self.offset_mm[0]) / self.mm_per_px + self.width as f64 / 2.0 - 0.5,
-            self.height as f64 / 2.0 - 0.5 - (y_mm - self.offset_mm[1]) / self.mm_per_px,
+            self.offset_mm[0] + c * a - s * b,
+            self.offset_mm[1] + s * a + c * b,
+        ]
+    }
+
+    /// Where on the gel pixel `(u, v)`'s centre lies, mm.
+    pub fn gel_of(&self, u: usize, v: usize) -> [f64; 2] {
+        self.gel_of_cam(self.cam_x(u), self.cam_y(v))
+    }
+
+    /// Fractional pixel position (column, row) of a gel point, mm: the inverse of
+    /// [`Self::gel_of`].
+    pub fn px_of(&self, x_mm: f64, y_mm: f64) -> [f64; 2] {
+        let [c, s] = self.rot;
+        let (dx, dy) = (x_mm - self.offset_mm[0], y_mm - self.offset_mm[1]);
+        let (a, b) = (c * dx + s * dy, -s * dx + c * dy);
+        [
+            a / self.mm_per_px + self.width as f64 / 2.0 - 0.5,
+            self.height as f64 / 2.0 - 0.5 - b / self.mm_per_px,
+        ]
+    }
+
+    /// A gel-frame vector (a gradient, a displacement) in the camera's frame.
+    pub fn to_cam(&self, v: [f32; 2]) -> [f32; 2] {
+        let [c, s] = self.rot.map(|r| r as f32);
+        [c * v[0] + s * v[1], -s * v[0] + c * v[1]]
+    }
+
+    /// The gel-frame box `[x0, x1] × [y0, y1]` (mm) that holds the whole image, grown by
+    /// `margin_mm` on every side.
+    pub fn gel_bounds(&self, margin_mm: f64) -> [f64; 4] {
+        let (hw, hh) = (
+            self.width as f64 / 2.0 * self.mm_per_px,
+            self.height as f64 / 2.0 * self.mm_per_px,
+        );
+        let corners =
+            [[-hw, -hh], [hw, -hh], [-hw, hh], [hw, hh]].map(|[a, b]| self.gel_of_cam(a, b));
+        let lo = |k: usize| corners.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+        let hi = |k: usize| {
+            corners
+                .iter()
+                .map(|p| p[k])
+                .fold(f64::NEG_INFINITY, f64::max)
+        };
+        [
+            lo(0) - margin_mm,
+            hi(0) + margin_mm,
+            lo(1) - margin_mm,
+            hi(1) + margin_mm,
         ]
     }
 }
@@ -232,38 +298,67 @@ pub(crate) fn resample_into(field: &SurfaceField, raster: &Raster, out: &mut Pix
     let Some((i0, i1, j0, j1)) = cells.active else {
         return;
     };
-    // Pixels whose bilinear support touches an active cell: within one cell of its centre.
+    // Pixels whose bilinear support touches an active cell: within one cell of its centre
+    // (the pixel box around the four corners of that gel rectangle, for a turned camera).
     let cell = field.cell_mm;
     let x_lo = field.origin_mm[0] + (i0 as f64 - 1.0) * cell;
     let x_hi = field.origin_mm[0] + (i1 as f64 + 1.0) * cell;
     let y_lo = field.origin_mm[1] + (j0 as f64 - 1.0) * cell;
     let y_hi = field.origin_mm[1] + (j1 as f64 + 1.0) * cell;
     let (wf, hf) = (raster.width as f64, raster.height as f64);
-    let col = |x: f64| raster.px_of(x, 0.0)[0].clamp(0.0, wf);
-    let row = |y: f64| raster.px_of(0.0, y)[1].clamp(0.0, hf);
+    let corners =
+        [[x_lo, y_lo], [x_hi, y_lo], [x_lo, y_hi], [x_hi, y_hi]].map(|[x, y]| raster.px_of(x, y));
+    let lo = |k: usize, max: f64| {
+        let m = corners.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+        m.clamp(0.0, max).floor() as usize
+    };
+    let hi = |k: usize, max: f64, n: usize| {
+        let m = corners
+            .iter()
+            .map(|p| p[k])
+            .fold(f64::NEG_INFINITY, f64::max);
+        (m.clamp(0.0, max).ceil() as usize + 1).min(n)
+    };
     let region = Region {
-        u0: col(x_lo).floor() as usize,
-        u1: (col(x_hi).ceil() as usize + 1).min(raster.width),
-        v0: row(y_hi).floor() as usize,
-        v1: (row(y_lo).ceil() as usize + 1).min(raster.height),
+        u0: lo(0, wf),
+        u1: hi(0, wf, raster.width),
+        v0: lo(1, hf),
+        v1: hi(1, hf, raster.height),
     };
     out.flat = false;
     out.region = region;
+    let max_h = if raster.aligned() {
+        resample_aligned(&cells, raster, region, out)
+    } else {
+        resample_turned(&cells, raster, region, out)
+    };
+    out.max_height_mm = max_h;
+    out.cells = Some(cells);
+}
+
+/// [`resample_into`]'s pixels for a camera whose axes are the gel's: per row, the field is
+/// interpolated between its two cell rows first (once per cell), then each pixel between two of
+/// those. Returns the largest height.
+fn resample_aligned(
+    cells: &CellField,
+    raster: &Raster,
+    region: Region,
+    out: &mut PixelField,
+) -> f32 {
+    let w = raster.width;
     let cols: Vec<Option<(usize, usize, f32)>> = (region.u0..region.u1)
         .map(|u| {
             bracket(
-                (raster.x_mm(u) - field.origin_mm[0]) * cells.inv_cell,
+                (raster.gel_of(u, 0)[0] - cells.origin_mm[0]) * cells.inv_cell,
                 cells.nx,
             )
         })
         .collect();
-    // Per row: the field interpolated between its two cell rows first (once per cell), then
-    // each pixel between two of those.
     let mut line = vec![[0f32; 3]; cells.nx];
     let mut max_h = 0f32;
     for v in region.v0..region.v1 {
         let Some((j0, j1, ty)) = bracket(
-            (raster.y_mm(v) - field.origin_mm[1]) * cells.inv_cell,
+            (raster.gel_of(0, v)[1] - cells.origin_mm[1]) * cells.inv_cell,
             cells.ny,
         ) else {
             continue;
@@ -294,8 +389,33 @@ pub(crate) fn resample_into(field: &SurfaceField, raster: &Raster, out: &mut Pix
             max_h = max_h.max(hs[k]);
         }
     }
-    out.max_height_mm = max_h;
-    out.cells = Some(cells);
+    max_h
+}
+
+/// [`resample_into`]'s pixels for a turned camera: each pixel's gel point is looked up on its
+/// own (bilinear), and the gradient is turned into the camera's frame, where the LEDs are.
+/// Returns the largest height.
+fn resample_turned(
+    cells: &CellField,
+    raster: &Raster,
+    region: Region,
+    out: &mut PixelField,
+) -> f32 {
+    let w = raster.width;
+    let mut max_h = 0f32;
+    for v in region.v0..region.v1 {
+        for u in region.u0..region.u1 {
+            let [x, y] = raster.gel_of(u, v);
+            let c = cells.sample(x, y);
+            let [gx, gy] = raster.to_cam([c[1], c[2]]);
+            let p = v * w + u;
+            out.height_mm[p] = c[0];
+            out.gx[p] = gx;
+            out.gy[p] = gy;
+            max_h = max_h.max(c[0]);
+        }
+    }
+    max_h
 }
 
 /// A geometric stand-in for the contact solver, for tests and previews: the gel takes the

@@ -34,12 +34,15 @@
 //!    shadows from being black); one sweep per LED finds every point's horizon.
 //! 6. **Blur** (effect): separable Gaussian, σ in pixels (defocus, gel thickness).
 //! 7. **Vignetting** (effect): brightness × `1 − v·(r/r_corner)²`.
-//! 8. **Noise** (effect): Gaussian, σ in 8-bit levels, seeded: the same seed gives the same
-//!    image.
+//! 8. **Noise** (effect): Gaussian (an Irwin–Hall sum of four uniforms, bounded at ±3.25σ),
+//!    σ in 8-bit levels, seeded: the same seed gives the same image.
 //!
-//! The image maps the surface frame onto pixels as a top view: column `u` is at
-//! `x = (u + ½ − W/2)·mm_per_px + o_x`, row `v` at `y = (H/2 − v − ½)·mm_per_px + o_y` (row 0
-//! is +y), with `o` the camera's offset on the gel (`camera_offset_mm`).
+//! The image maps the surface frame onto pixels as a top view: pixel `(u, v)` is at
+//! `o + R(θ)·((u + ½ − W/2)·mm_per_px, (H/2 − v − ½)·mm_per_px)` on the gel (row 0 is the
+//! camera's +y), with `o` the camera's offset on the gel (`camera_offset_mm`) and `R(θ)` its
+//! rotation about its axis (`camera_rotation_deg`). The LEDs sit in the camera's housing, so
+//! their directions and the illumination ramp are in the camera's frame, and the surface's
+//! gradient is turned into that frame before shading.
 //!
 //! # Cost
 //!
@@ -47,7 +50,7 @@
 //! untouched gel costs a copy, and a contact costs its own pixels: shading a few dozen
 //! floating-point operations per pixel and LED (over planes of `f32`, vectorised), markers a
 //! small box per dot, shadows one O(pixels) sweep per LED, blur `6σ + 1` taps per pass, noise
-//! one random draw per two samples. `rig bench render` measures each effect on and off.
+//! one random draw per four samples. `rig bench render` measures each effect on and off.
 
 mod field;
 mod markers;
@@ -138,10 +141,15 @@ pub fn marker_centres_mm(optics: &OpticsConfig) -> Vec<[f64; 2]> {
     let Some(m) = markers::Markers::new(&optics.markers) else {
         return Vec::new();
     };
-    let hx = raster.width as f64 / 2.0 * raster.mm_per_px;
-    let hy = raster.height as f64 / 2.0 * raster.mm_per_px;
-    let [ox, oy] = raster.offset_mm;
-    m.centres_in(ox - hx, ox + hx, oy - hy, oy + hy)
+    let [x0, x1, y0, y1] = raster.gel_bounds(0.0);
+    let (w, h) = (raster.width as f64, raster.height as f64);
+    m.centres_in(x0, x1, y0, y1)
+        .into_iter()
+        .filter(|c| {
+            let [u, v] = raster.px_of(c[0], c[1]);
+            (-0.5..w - 0.5).contains(&u) && (-0.5..h - 0.5).contains(&v)
+        })
+        .collect()
 }
 
 /// Pixel position (column, row; fractional) of a surface-frame point, mm.
@@ -263,10 +271,11 @@ impl Renderer {
         let half_h = h as f64 / 2.0 * raster.mm_per_px;
         let reach = (half_w * half_w + half_h * half_h).sqrt().max(1e-9);
         let mut base = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
+        // The LEDs sit in the camera's housing: the ramp runs in the camera's frame.
         for v in 0..h {
-            let y = raster.y_mm(v);
+            let y = raster.cam_y(v);
             for u in 0..w {
-                let x = raster.x_mm(u);
+                let x = raster.cam_x(u);
                 let mut c = colour;
                 for l in &lights {
                     let ramp = (0.5 * (x * l.azimuth[0] + y * l.azimuth[1]) / reach) as f32;
@@ -285,9 +294,8 @@ impl Renderer {
             .then(|| markers::Markers::new(&optics.markers))
             .flatten()
             .map(|m| {
-                let (rx, ry) = (half_w + MARKER_REACH_MM, half_h + MARKER_REACH_MM);
-                let [ox, oy] = raster.offset_mm;
-                let centres = m.centres_in(ox - rx, ox + rx, oy - ry, oy + ry);
+                let [x0, x1, y0, y1] = raster.gel_bounds(MARKER_REACH_MM);
+                let centres = m.centres_in(x0, x1, y0, y1);
                 let dot = optics.markers.rgb.map(|c| finite_or(c, 0.0) as f32);
                 (centres, m.radius_mm(), dot)
             });
@@ -518,7 +526,9 @@ impl Renderer {
             // Pixels the dot can cover: ‖J‖∞ · (r + one pixel) around its centre.
             let row_sum =
                 (jac[0][0].abs() + jac[0][1].abs()).max(jac[1][0].abs() + jac[1][1].abs());
-            let ext = row_sum * (radius + s) / s;
+            // (A turned camera sees that gel box turned: its pixel box is up to √2 wider.)
+            let turn = self.raster.rot[0].abs() + self.raster.rot[1].abs();
+            let ext = turn * row_sum * (radius + s) / s;
             let [cu, cv] = self.raster.px_of(centre[0], centre[1]);
             if !(cu.is_finite() && cv.is_finite()) {
                 continue;
@@ -528,9 +538,9 @@ impl Renderer {
             let v0 = (cv - ext).floor().max(0.0) as usize;
             let v1 = ((cv + ext).ceil() + 1.0).clamp(0.0, h as f64) as usize;
             for v in v0..v1 {
-                let dy = self.raster.y_mm(v) - centre[1];
                 for u in u0..u1 {
-                    let dx = self.raster.x_mm(u) - centre[0];
+                    let p = self.raster.gel_of(u, v);
+                    let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
                     // The material offset from the dot's centre that this pixel shows.
                     let d = [
                         inv[0][0] * dx + inv[0][1] * dy,
@@ -582,13 +592,32 @@ fn quantize(img: &[Vec<f32>; 3], w: usize, h: usize, sigma: f32, seed: u64) -> i
     if sigma > 0.0 {
         let mut gauss = noise::Gaussian::new(seed);
         let scale = sigma / 255.0;
-        // Two normal numbers per draw, in byte order (pixel i / 3, channel i % 3).
-        let mut z = [0f32; 2];
-        for (i, o) in out.iter_mut().enumerate() {
-            if i % 2 == 0 {
-                z = gauss.next_pair();
+        // Four normal numbers per draw, in byte order (byte i takes number i % 4 of draw i / 4):
+        // three draws for every four pixels.
+        let [r, g, b] = img;
+        let n = w * h;
+        let mut quads = out.chunks_exact_mut(12);
+        for (k, o) in (&mut quads).enumerate() {
+            let p = 4 * k;
+            let mut z = [0f32; 12];
+            for d in 0..3 {
+                z[4 * d..4 * d + 4].copy_from_slice(&gauss.next_quad());
             }
-            *o = level(img[i % 3][i / 3] + scale * z[i % 2]);
+            for j in 0..4 {
+                o[3 * j] = level(r[p + j] + scale * z[3 * j]);
+                o[3 * j + 1] = level(g[p + j] + scale * z[3 * j + 1]);
+                o[3 * j + 2] = level(b[p + j] + scale * z[3 * j + 2]);
+            }
+        }
+        // Up to three pixels left over: the same order, from as many draws as they need.
+        let rest = quads.into_remainder();
+        let first = n - rest.len() / 3;
+        let mut z = [0f32; 12];
+        for d in 0..rest.len().div_ceil(4) {
+            z[4 * d..4 * d + 4].copy_from_slice(&gauss.next_quad());
+        }
+        for (i, o) in rest.iter_mut().enumerate() {
+            *o = level(img[i % 3][first + i / 3] + scale * z[i]);
         }
     } else {
         for (p, o) in out.chunks_exact_mut(3).enumerate() {
