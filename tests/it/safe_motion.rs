@@ -308,13 +308,39 @@ fn a_blocked_recorder_does_not_delay_the_stop_on_a_force_limit_crossing() {
         speed_factor: 1.0,
         ..RunOptions::new(&out)
     };
+    // If the force never crossed the limit, nothing would open the writer and the run would
+    // wait on its recording for ever: a guard opens it after far longer than the trajectory
+    // takes (about 30 s at this clock's real speed), so the test fails below instead of hanging.
+    let finished = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let guard = {
+        let (gate, finished) = (opts.recorder_gate.clone().unwrap(), finished.clone());
+        std::thread::spawn(move || {
+            for _ in 0..3000 {
+                if finished.load(std::sync::atomic::Ordering::Relaxed) {
+                    return false;
+                }
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+            gate.open();
+            true
+        })
+    };
     let rt = tokio::runtime::Runtime::new().unwrap();
     let summary = rt.block_on(run(&config, &indenter, &opts)).unwrap();
+    finished.store(true, std::sync::atomic::Ordering::Relaxed);
+    let guard_opened = guard.join().unwrap();
 
-    let stop = summary
-        .safety_stops
-        .first()
-        .unwrap_or_else(|| panic!("no safety stop: {}", summary.report()));
+    let stop = summary.safety_stops.first().unwrap_or_else(|| {
+        panic!(
+            "no safety stop{}: {}",
+            if guard_opened {
+                " (the run waited on its stalled recording until the test's guard opened it)"
+            } else {
+                ""
+            },
+            summary.report()
+        )
+    });
     assert!(
         matches!(stop.trip, rig::run::streams::Trip::ForceLimit { limit_n, .. } if limit_n == DRILL_FORCE_LIMIT_N),
         "{stop:?}"
