@@ -132,12 +132,7 @@ pub fn measure(quick: bool) -> anyhow::Result<Vec<SimBenchRow>> {
         push("layer", &gel, ContactModel::Layer, Some(c), f64::NAN)?;
     }
     // The 3 mm layer has no closed form: compare with its finest grid.
-    let finest = rows
-        .iter()
-        .filter(|r| r.model == "layer")
-        .min_by(|a, b| a.cell_mm.partial_cmp(&b.cell_mm).expect("finite cells"))
-        .map(|r| r.force_n)
-        .unwrap_or(f64::NAN);
+    let finest = finest(&rows, "layer").map_or(f64::NAN, |r| r.force_n);
     for r in rows.iter_mut().filter(|r| r.model == "layer") {
         r.reference_n = finest;
         r.rel_error = (r.force_n - finest).abs() / finest;
@@ -204,12 +199,9 @@ fn measure_trajectories(
             shear_n: Some((ft, f64::NAN)),
         });
     }
-    let finest = rows
-        .iter()
-        .filter(|r| r.model == "sensor")
-        .min_by(|a, b| a.cell_mm.partial_cmp(&b.cell_mm).expect("finite cells"))
-        .map(|r| (r.force_n, r.shear_n.map_or(f64::NAN, |s| s.0)))
-        .unwrap_or((f64::NAN, f64::NAN));
+    let finest = finest(&rows, "sensor").map_or((f64::NAN, f64::NAN), |r| {
+        (r.force_n, r.shear_n.map_or(f64::NAN, |s| s.0))
+    });
     for r in &mut rows {
         let ft = r.shear_n.map_or(f64::NAN, |s| s.0);
         r.reference_n = finest.0;
@@ -220,6 +212,13 @@ fn measure_trajectories(
     Ok(rows)
 }
 
+/// The row of `model` on its finest grid.
+fn finest<'a>(rows: &'a [SimBenchRow], model: &str) -> Option<&'a SimBenchRow> {
+    rows.iter()
+        .filter(|r| r.model == model)
+        .min_by(|a, b| a.cell_mm.partial_cmp(&b.cell_mm).expect("finite cells"))
+}
+
 /// Steps one trajectory at 50 Hz (down to [`DEPTH_MM`] at 1 mm/s, held 0.1 s, a 1 mm slide
 /// along x at 1 mm/s) with `effects`: peak |Fz|, peak shear (N), mean wall time per step (ms).
 fn step_trajectory(
@@ -228,13 +227,15 @@ fn step_trajectory(
     effects: &Effects,
 ) -> anyhow::Result<(f64, f64, f64)> {
     const DT_S: f64 = 0.02;
-    let down = (DEPTH_MM / (1.0 * DT_S)).round() as usize;
-    let slide = (1.0 / (1.0 * DT_S)).round() as usize;
+    const SPEED_MM_S: f64 = 1.0;
+    const SLIDE_MM: f64 = 1.0;
+    let down = (DEPTH_MM / (SPEED_MM_S * DT_S)).round() as usize;
+    let slide = (SLIDE_MM / (SPEED_MM_S * DT_S)).round() as usize;
     let mut poses: Vec<(f64, f64)> = (1..=down)
         .map(|k| (DEPTH_MM * k as f64 / down as f64, 0.0))
         .collect();
     poses.extend((0..5).map(|_| (DEPTH_MM, 0.0)));
-    poses.extend((1..=slide).map(|k| (DEPTH_MM, k as f64 / slide as f64)));
+    poses.extend((1..=slide).map(|k| (DEPTH_MM, SLIDE_MM * k as f64 / slide as f64)));
     let mut scene = Scene::new(gel.clone(), sphere.clone(), IndenterPose::default());
     scene.effects = effects.clone();
     let mut sim = Simulator::new();

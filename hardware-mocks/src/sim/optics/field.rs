@@ -35,13 +35,14 @@ impl Raster {
         } else {
             0.0
         };
+        // sin_cos(0) is exactly (0, 1): an unturned camera is `aligned`.
         let (sin, cos) = angle.sin_cos();
         Self {
             width: side(optics.width_px),
             height: side(optics.height_px),
             mm_per_px,
             offset_mm,
-            rot: if angle == 0.0 { [1.0, 0.0] } else { [cos, sin] },
+            rot: [cos, sin],
         }
     }
 
@@ -103,20 +104,26 @@ impl Raster {
         );
         let corners =
             [[-hw, -hh], [hw, -hh], [-hw, hh], [hw, hh]].map(|[a, b]| self.gel_of_cam(a, b));
-        let lo = |k: usize| corners.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
-        let hi = |k: usize| {
-            corners
-                .iter()
-                .map(|p| p[k])
-                .fold(f64::NEG_INFINITY, f64::max)
-        };
+        let [x0, x1, y0, y1] = bounding_box(&corners);
         [
-            lo(0) - margin_mm,
-            hi(0) + margin_mm,
-            lo(1) - margin_mm,
-            hi(1) + margin_mm,
+            x0 - margin_mm,
+            x1 + margin_mm,
+            y0 - margin_mm,
+            y1 + margin_mm,
         ]
     }
+}
+
+/// The axis-aligned box `[x0, x1, y0, y1]` around `points`.
+fn bounding_box(points: &[[f64; 2]]) -> [f64; 4] {
+    let lo = |k: usize| points.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+    let hi = |k: usize| {
+        points
+            .iter()
+            .map(|p| p[k])
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    [lo(0), hi(0), lo(1), hi(1)]
 }
 
 /// Below these a cell does not change the image (so the renderer leaves its pixels as the
@@ -308,22 +315,12 @@ pub(crate) fn resample_into(field: &SurfaceField, raster: &Raster, out: &mut Pix
     let (wf, hf) = (raster.width as f64, raster.height as f64);
     let corners =
         [[x_lo, y_lo], [x_hi, y_lo], [x_lo, y_hi], [x_hi, y_hi]].map(|[x, y]| raster.px_of(x, y));
-    let lo = |k: usize, max: f64| {
-        let m = corners.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
-        m.clamp(0.0, max).floor() as usize
-    };
-    let hi = |k: usize, max: f64, n: usize| {
-        let m = corners
-            .iter()
-            .map(|p| p[k])
-            .fold(f64::NEG_INFINITY, f64::max);
-        (m.clamp(0.0, max).ceil() as usize + 1).min(n)
-    };
+    let [u_lo, u_hi, v_lo, v_hi] = bounding_box(&corners);
     let region = Region {
-        u0: lo(0, wf),
-        u1: hi(0, wf, raster.width),
-        v0: lo(1, hf),
-        v1: hi(1, hf, raster.height),
+        u0: u_lo.clamp(0.0, wf).floor() as usize,
+        u1: (u_hi.clamp(0.0, wf).ceil() as usize + 1).min(raster.width),
+        v0: v_lo.clamp(0.0, hf).floor() as usize,
+        v1: (v_hi.clamp(0.0, hf).ceil() as usize + 1).min(raster.height),
     };
     out.flat = false;
     out.region = region;

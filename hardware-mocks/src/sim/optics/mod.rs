@@ -538,8 +538,9 @@ impl Renderer {
             let v0 = (cv - ext).floor().max(0.0) as usize;
             let v1 = ((cv + ext).ceil() + 1.0).clamp(0.0, h as f64) as usize;
             for v in v0..v1 {
+                let b = self.raster.cam_y(v);
                 for u in u0..u1 {
-                    let p = self.raster.gel_of(u, v);
+                    let p = self.raster.gel_of_cam(self.raster.cam_x(u), b);
                     let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
                     // The material offset from the dot's centre that this pixel shows.
                     let d = [
