@@ -203,9 +203,11 @@ pub async fn run(
         // When each supervisor stop reached the simulated controller.
         let received = s.stop_requests_received();
         for stop in &mut summary.safety_stops {
-            stop.reached_controller_ns = stop
+            let seen = stop
                 .request
-                .and_then(|r| received.iter().find(|x| x.request == r).map(|x| x.t_ns));
+                .and_then(|r| received.iter().find(|x| x.request == r));
+            stop.reached_controller_ns = seen.map(|x| x.t_ns);
+            stop.tcp_at_controller = seen.map(|x| x.tcp_pose);
         }
     }
     summary.retracts = retracts.lock().unwrap_or_else(|e| e.into_inner()).clone();

@@ -59,6 +59,8 @@ pub struct SafetyStop {
     pub recording_backed_up: bool,
     /// Simulated rig only: when the stop request reached the controller (clock time, ns).
     pub reached_controller_ns: Option<u64>,
+    /// Simulated rig only: where the TCP was when the stop request reached the controller.
+    pub tcp_at_controller: Option<rig_core::pose::Pose>,
 }
 
 /// Sees every stop the supervisor commands, right after it is commanded and published. It
@@ -142,6 +144,7 @@ impl Supervisor {
                 .ft_forwarder_waiting
                 .load(Ordering::Acquire),
             reached_controller_ns: None,
+            tcp_at_controller: None,
         };
         self.shared
             .stops

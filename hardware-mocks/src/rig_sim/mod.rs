@@ -48,7 +48,10 @@
 //! The default physics ([`PhysicsConfig::default`], what `rig run` uses) is the sensor physics
 //! every command uses: the finite layer at 0.4 mm cells with Coulomb friction and the
 //! elastomer's relaxation, stepped at 50 Hz of clock time. One step in contact costs about
-//! 1.5–2.5 ms (release build, 2-core machine; see `rig bench run`'s "contact physics steps").
+//! 0.2–0.4 ms for the cone, sphere and prism, whose contacts are solved on a window of the
+//! grid, and 1.4–2 ms for the wide flat faces, which need the whole grid (release build,
+//! 2-core machine; the window is described in `sim/contact/window.rs`). At ×10 a step has
+//! 2 ms of real time, so the cone's full plan runs at the clock's speed (`rig bench run`).
 //! Steps sit on a grid of whole periods of clock time, and the simulated camera captures at
 //! whole multiples of its own period, so at 25 fps every frame's contact is a step. The physics
 //! task paces the simulated clock ([`PHYSICS_PACER_LEAD`]): simulated time runs at most a tick

@@ -108,6 +108,9 @@ pub struct SimStats {
     pub ffts: u32,
     /// Influence kernels built (0 when the cached ones were reused).
     pub kernels_built: u32,
+    /// Normal solves repeated on a larger window because the deformed gel touched the
+    /// indenter outside the first (see `contact/window.rs`).
+    pub windows_grown: u32,
     /// Surface fields assembled.
     pub fields_built: u32,
     /// Images rendered.

@@ -71,12 +71,14 @@ pub struct CommandReceived {
 
 /// One input data package that changed the safety supervisor's stop request
 /// ([`control::IN_STOP_REQ`]), as the controller received it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StopRequestReceived {
     /// Clock time the package was applied, ns.
     pub t_ns: u64,
     /// The new value of the request counter.
     pub request: i32,
+    /// Where the TCP was when it was applied.
+    pub tcp_pose: Pose,
 }
 
 /// Commands (and stop requests) kept in [`Controller::commands_received`] (and
@@ -513,8 +515,11 @@ impl Controller {
             if self.stop_requests.len() == COMMAND_LOG {
                 self.stop_requests.pop_front();
             }
-            self.stop_requests
-                .push_back(StopRequestReceived { t_ns, request });
+            self.stop_requests.push_back(StopRequestReceived {
+                t_ns,
+                request,
+                tcp_pose: self.tcp_pose(),
+            });
         }
         let seq = self.in_int[control::IN_CMD_SEQ as usize];
         if seq != seq_before {

@@ -298,7 +298,7 @@ impl Shape {
 
     fn local_gap(&self, u: f64, v: f64) -> f64 {
         const NONE: f64 = f64::INFINITY;
-        let rho = u.hypot(v);
+        let rho = radius(u, v);
         match &self.primitive {
             Primitive::SphereCap(p) => {
                 let rim = p.rim_radius_mm.unwrap_or(p.radius_mm);
@@ -379,7 +379,7 @@ impl Shape {
                 let fy = -(f64::from(p.rows) - 1.0) / 2.0 * p.pitch_mm;
                 let du = nearest_offset(u, fx, p.pitch_mm, p.cols);
                 let dv = nearest_offset(v, fy, p.pitch_mm, p.rows);
-                let r = du.hypot(dv);
+                let r = radius(du, dv);
                 if r > p.dot_radius_mm {
                     NONE
                 } else {
@@ -399,7 +399,7 @@ impl Shape {
             }
             Primitive::Moon(p) => {
                 let in_disc = rho <= p.radius_mm;
-                let in_cut = (u - p.cut_offset_mm).hypot(v) < p.cut_radius_mm;
+                let in_cut = radius(u - p.cut_offset_mm, v) < p.cut_radius_mm;
                 if in_disc && !in_cut { 0.0 } else { NONE }
             }
             Primitive::Pacman(p) => {
@@ -414,7 +414,7 @@ impl Shape {
                 .bumps
                 .iter()
                 .filter_map(|b| {
-                    let r = (u - b.x).hypot(v - b.y);
+                    let r = radius(u - b.x, v - b.y);
                     (r <= b.radius).then(|| b.lift + cap(b.radius, r))
                 })
                 .fold(NONE, f64::min),
@@ -439,6 +439,13 @@ fn nearest_offset(x: f64, first: f64, pitch: f64, count: u32) -> f64 {
         .round()
         .clamp(0.0, f64::from(count - 1));
     (x - (first + k * pitch)).abs()
+}
+
+/// `√(u² + v²)`. The gap is sampled many times a step (the contact's sub-sampled overlap), and
+/// `f64::hypot`'s guard against overflow costs several square roots; coordinates here are
+/// millimetres within an indenter's footprint, far from overflow.
+fn radius(u: f64, v: f64) -> f64 {
+    (u * u + v * v).sqrt()
 }
 
 fn local_half_extents(p: &Primitive) -> [f64; 2] {

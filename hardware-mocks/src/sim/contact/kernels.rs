@@ -135,19 +135,58 @@ impl LayerCorrection {
     }
 }
 
-/// Spectrum of the normal influence kernel in units of 1/E* (multiply by 1/E*): displacement
-/// into the gel at a cell centre per unit pressure on a cell. `thickness_mm`: `None` for the
-/// half-space, `Some(h)` for the bonded layer.
-pub(crate) fn normal_kernel(
-    conv: &mut Conv2,
+/// A kernel's values at the cell offsets of a grid of `nx × ny` cells: `(di, dj)` with
+/// `|di| < nx`, `|dj| < ny`. Evaluated once per grid; the spectrum of any window of the grid
+/// (see `window.rs`) is transformed from it.
+pub(crate) struct OffsetTable {
+    nx: usize,
+    ny: usize,
+    values: Vec<f64>,
+}
+
+impl OffsetTable {
+    pub fn new(nx: usize, ny: usize, f: impl Fn(isize, isize) -> f64) -> Self {
+        let (sx, sy) = (nx as isize, ny as isize);
+        let mut values = Vec::with_capacity((2 * nx - 1) * (2 * ny - 1));
+        for dj in -(sy - 1)..sy {
+            for di in -(sx - 1)..sx {
+                values.push(f(di, dj));
+            }
+        }
+        Self { nx, ny, values }
+    }
+
+    /// The value at offset `(di, dj)`; panics outside the table (a window is never larger
+    /// than its grid).
+    pub fn at(&self, di: isize, dj: isize) -> f64 {
+        let (sx, sy) = (self.nx as isize, self.ny as isize);
+        assert!(
+            di.abs() < sx && dj.abs() < sy,
+            "offset ({di}, {dj}) outside the table"
+        );
+        self.values[((dj + sy - 1) * (2 * sx - 1) + di + sx - 1) as usize]
+    }
+
+    /// Spectrum of the kernel on `conv`'s (padded) grid, which must not exceed the table's.
+    pub fn hat(&self, conv: &mut Conv2) -> Vec<Complex64> {
+        conv.kernel_hat(|di, dj| self.at(di, dj))
+    }
+}
+
+/// The normal influence kernel in units of 1/E* (multiply by 1/E*): displacement into the gel
+/// at a cell centre per unit pressure on a cell, at every offset of an `nx × ny` grid.
+/// `thickness_mm`: `None` for the half-space, `Some(h)` for the bonded layer.
+pub(crate) fn normal_offsets(
+    nx: usize,
+    ny: usize,
     cell: f64,
     nu: f64,
     thickness_mm: Option<f64>,
-) -> Vec<Complex64> {
+) -> OffsetTable {
     let c = cell / 2.0;
-    let r_max = cell * ((conv.nx as f64).hypot(conv.ny as f64) + 1.0);
+    let r_max = cell * ((nx as f64).hypot(ny as f64) + 1.0);
     let corr = thickness_mm.map(|h| LayerCorrection::new(h, nu, r_max, cell));
-    conv.kernel_hat(|di, dj| {
+    OffsetTable::new(nx, ny, |di, dj| {
         let (x, y) = (di as f64 * cell, dj as f64 * cell);
         let mut v = cell_inv_r(x, y, c);
         if let Some(corr) = &corr {
@@ -175,21 +214,38 @@ pub(crate) struct TangentialKernel {
     pub lambda_max: f64,
 }
 
-pub(crate) fn tangential_kernel(conv: &mut Conv2, cell: f64, nu: f64) -> TangentialKernel {
+/// The Cerruti compliances `Kxx`, `Kyy`, `Kxy` (units 1/E) at every offset of a grid.
+pub(crate) struct TangentialOffsets {
+    xx: OffsetTable,
+    yy: OffsetTable,
+    xy: OffsetTable,
+}
+
+pub(crate) fn tangential_offsets(nx: usize, ny: usize, cell: f64, nu: f64) -> TangentialOffsets {
     let c = cell / 2.0;
     let pre = (1.0 + nu) / std::f64::consts::PI;
-    let xx = conv.kernel_hat(|di, dj| {
-        let (x, y) = (di as f64 * cell, dj as f64 * cell);
-        pre * ((1.0 - nu) * cell_inv_r(x, y, c) + nu * cell_xx_r3(x, y, c))
-    });
-    let yy = conv.kernel_hat(|di, dj| {
-        let (x, y) = (di as f64 * cell, dj as f64 * cell);
-        pre * ((1.0 - nu) * cell_inv_r(x, y, c) + nu * cell_xx_r3(y, x, c))
-    });
-    let xy = conv.kernel_hat(|di, dj| {
-        let (x, y) = (di as f64 * cell, dj as f64 * cell);
-        pre * nu * cell_xy_r3(x, y, c)
-    });
+    let at = |di: isize, dj: isize| (di as f64 * cell, dj as f64 * cell);
+    TangentialOffsets {
+        xx: OffsetTable::new(nx, ny, |di, dj| {
+            let (x, y) = at(di, dj);
+            pre * ((1.0 - nu) * cell_inv_r(x, y, c) + nu * cell_xx_r3(x, y, c))
+        }),
+        yy: OffsetTable::new(nx, ny, |di, dj| {
+            let (x, y) = at(di, dj);
+            pre * ((1.0 - nu) * cell_inv_r(x, y, c) + nu * cell_xx_r3(y, x, c))
+        }),
+        xy: OffsetTable::new(nx, ny, |di, dj| {
+            let (x, y) = at(di, dj);
+            pre * nu * cell_xy_r3(x, y, c)
+        }),
+    }
+}
+
+/// The packed Cerruti operator on `conv`'s grid (a window of the tables' grid, or all of it).
+pub(crate) fn tangential_kernel(conv: &mut Conv2, offsets: &TangentialOffsets) -> TangentialKernel {
+    let xx = offsets.xx.hat(conv);
+    let yy = offsets.yy.hat(conv);
+    let xy = offsets.xy.hat(conv);
     let lambda_max = xx
         .iter()
         .zip(&yy)

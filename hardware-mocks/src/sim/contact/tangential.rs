@@ -73,6 +73,26 @@ impl Apply<'_> {
     }
 }
 
+/// The surface displacements `(ux, uy) = C (qx, qy)` of the tractions on `conv`'s grid, mm.
+pub(crate) fn apply(
+    conv: &mut Conv2,
+    k: &TangentialKernel,
+    inv_e: f64,
+    qx: &[f64],
+    qy: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let mut op = Apply {
+        conv,
+        k,
+        inv_e,
+        z: Vec::new(),
+        w: Vec::new(),
+    };
+    let (mut ux, mut uy) = (vec![0.0; qx.len()], vec![0.0; qx.len()]);
+    op.apply(qx, qy, &mut ux, &mut uy);
+    (ux, uy)
+}
+
 /// Boundary-element step (half-space Cerruti compliance), solved by accelerated projected
 /// gradient (FISTA with adaptive restart; Beck & Teboulle 2009, O'Donoghue & Candès 2015).
 #[allow(clippy::too_many_arguments)]
