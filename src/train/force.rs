@@ -171,7 +171,7 @@ pub struct ForceModel {
 /// The encoder's CPU inference form on the CPU backend; `None` on the GPU, where burn's
 /// kernels run.
 fn fast_form(net: &ForceNet) -> Option<FastEncoder> {
-    if cfg!(feature = "gpu") {
+    if cfg!(any(feature = "gpu", feature = "wgpu")) {
         None
     } else {
         net.fast_encoder()
@@ -245,13 +245,19 @@ fn new_optimizer(kind: Optimizer) -> ModuleOptimizer {
     }
 }
 
-/// The device the trainer computes on: CUDA with the `gpu` feature, else the flex CPU backend.
+/// The device the trainer computes on: CUDA with the `gpu` feature; with `wgpu`, the GPU
+/// wgpu's heuristics pick (a high-power one first; `CUBECL_WGPU_DEFAULT_DEVICE`, e.g.
+/// `DiscreteGpu(1)`, overrides it); else the flex CPU backend.
 pub fn device() -> Device {
     #[cfg(feature = "gpu")]
     {
         Device::cuda(0)
     }
-    #[cfg(not(feature = "gpu"))]
+    #[cfg(all(feature = "wgpu", not(feature = "gpu")))]
+    {
+        Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
+    }
+    #[cfg(not(any(feature = "gpu", feature = "wgpu")))]
     {
         Device::flex()
     }
