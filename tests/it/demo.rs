@@ -3,8 +3,8 @@
 //! target sensor. The table must be written, translation must bring the source images closer to
 //! the target's (colour statistics; and Inception FID when CI has fetched the weights), and
 //! TransForce must beat source-only on the target on every axis (MAE over all
-//! frames) and on the force magnitude. The demo slides 3 mm at depth, so the shear forces (up to
-//! about 1 N, with slip and reversal) are a signal the quick models can learn; source-only,
+//! frames) and on the force magnitude. The demo slides 2 mm at depth, so the shear forces (a few
+//! newtons, with slip and reversal) are a signal the quick models can learn; source-only,
 //! trained on the source sensor's images, does not transfer them to the target's.
 
 use std::process::Command;
