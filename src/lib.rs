@@ -86,3 +86,14 @@ pub mod run;
 pub mod simrig;
 pub mod sync;
 pub mod train;
+
+/// The rig's cache directory, `${XDG_CACHE_HOME:-~/.cache}/rig`: the Inception weights, the
+/// simulated rig's contact tapes. Nothing in it is precious: each user of it can make it again.
+pub fn cache_root() -> std::path::PathBuf {
+    std::env::var_os("XDG_CACHE_HOME")
+        .filter(|v| !v.is_empty())
+        .map(std::path::PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| std::path::PathBuf::from(h).join(".cache")))
+        .unwrap_or_else(|| std::path::PathBuf::from(".cache"))
+        .join("rig")
+}

@@ -153,6 +153,7 @@ pub(super) async fn open_rig(
             speed_factor: opts.speed_factor,
             physics: opts.sim_physics.clone(),
             ft_front_end: opts.sim_ft,
+            contact_cache: opts.sim_contact_cache.clone(),
         },
     )
     .await?;

@@ -220,7 +220,7 @@ pub async fn run(
         .with_context(|| format!("finishing the recording in {}", opts.out.display()))?;
     drop(robot);
     if let Some(s) = sim {
-        s.shutdown().await;
+        summary.sim_tapes = s.shutdown().await;
     }
     summary.wall_time_s = wall0.elapsed().as_secs_f64();
     // The arm is left above the gel: every trajectory ends its Up stage at approach height.

@@ -35,6 +35,10 @@ pub struct RunOptions {
     pub sim_physics: PhysicsConfig,
     /// Simulated rig only: how the simulated Nano17 is connected.
     pub sim_ft: SimFtFrontEnd,
+    /// Simulated rig only: the contact cache's root directory (simulate once, render per
+    /// sensor: a run replays the contact a run with the same gel, indenter and physics left
+    /// there, and leaves its own). `None`: every contact is solved.
+    pub sim_contact_cache: Option<PathBuf>,
     /// Simulated rig only: faults to inject.
     pub sim_faults: Vec<SimFault>,
     /// Sees every record written (the Foxglove live view).
@@ -58,6 +62,7 @@ impl std::fmt::Debug for RunOptions {
             .field("resume", &self.resume)
             .field("sim_physics", &self.sim_physics)
             .field("sim_ft", &self.sim_ft)
+            .field("sim_contact_cache", &self.sim_contact_cache)
             .field("sim_faults", &self.sim_faults)
             .field("tap", &self.tap.is_some())
             .field("sim_start_pose", &self.sim_start_pose)
@@ -76,6 +81,7 @@ impl RunOptions {
             resume: false,
             sim_physics: simrig::default_physics(),
             sim_ft: SimFtFrontEnd::NetFt,
+            sim_contact_cache: None,
             sim_faults: Vec::new(),
             tap: None,
             sim_start_pose: None,

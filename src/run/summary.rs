@@ -61,6 +61,8 @@ pub struct RunSummary {
     pub image_lag_max_ms: Option<f64>,
     /// Simulated rig only: the contact physics' counters (steps, steps in contact).
     pub sim_physics: Option<hardware_mocks::rig_sim::PhysicsStats>,
+    /// Simulated rig with a contact cache: what was replayed, solved and written.
+    pub sim_tapes: Option<hardware_mocks::rig_sim::TapeStats>,
     /// Times a stream or the collector waited for the writer (slow disk).
     pub backpressure_waits: u64,
     /// Frames received from the camera in the whole run (recorded or not).
@@ -216,6 +218,13 @@ impl RunSummary {
         if let Some(lag) = self.image_lag_max_ms.filter(|l| *l > SIM_IMAGE_LAG_WARN_MS) {
             s.push_str(&format!(
                 "simulated images: contact drawn up to {lag:.1} ms before a frame's capture time (the contact physics fell behind)\n"
+            ));
+        }
+        if let Some(t) = &self.sim_tapes {
+            let steps = t.replayed_steps + t.solved_steps;
+            s.push_str(&format!(
+                "contact cache: {} of {steps} contact steps replayed from the {} tapes a run with the same gel left (simulate once, render per sensor), {} solved; {} episodes left their tapes and went on live; {} new tapes\n",
+                t.replayed_steps, t.tapes_found, t.solved_steps, t.episodes_left, t.tapes_written
             ));
         }
         if self.backpressure_waits > 0 {

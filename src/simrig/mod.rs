@@ -47,7 +47,7 @@ pub use camera::SimFrameSource;
 pub use faults::{SimFault, SimFaultKind};
 pub use ft::open_ft;
 pub use governor::govern;
-pub use hardware_mocks::rig_sim::{PhysicsConfig, SimFtFrontEnd};
+pub use hardware_mocks::rig_sim::{PhysicsConfig, SimFtFrontEnd, TapeStats};
 /// The contact + optics simulator itself (scenes, contact models, rendering), for `rig sim`
 /// and `rig bench sim|render`.
 pub use hardware_mocks::sim;
@@ -74,6 +74,8 @@ pub struct StartOptions {
     pub speed_factor: f64,
     pub physics: PhysicsConfig,
     pub ft_front_end: SimFtFrontEnd,
+    /// The contact cache's root directory (see `RunOptions::sim_contact_cache`).
+    pub contact_cache: Option<std::path::PathBuf>,
 }
 
 /// The simulated rig, started, and the lab-shaped handles a run reads it through.
@@ -134,8 +136,12 @@ impl RunningSimRig {
         self.rig.ur5e_arc().stop_requests_received()
     }
 
-    pub async fn shutdown(self) {
+    /// Stops the simulated rig; the contact cache's counters once its tapes are written
+    /// (`None` without a cache).
+    pub async fn shutdown(self) -> Option<hardware_mocks::rig_sim::TapeStats> {
+        let physics = self.rig.physics().clone();
         self.rig.shutdown().await;
+        physics.tape_stats()
     }
 }
 
@@ -165,6 +171,7 @@ pub async fn start(
         initial_robot_mode: robot_mode::POWER_OFF,
         physics: opts.physics,
         ft_front_end: opts.ft_front_end,
+        contact_cache: opts.contact_cache,
         ..SimRigOptions::for_config(config)
     };
     let mut rig = SimRig::start(config, Arc::new(indenter.clone()), clock.clone(), sim_opts)

@@ -63,12 +63,7 @@ pub struct WeightsPath {
 
 /// The default location, shared with `scripts/fetch-inception`.
 pub fn default_weights_path() -> PathBuf {
-    let cache = std::env::var_os("XDG_CACHE_HOME")
-        .filter(|v| !v.is_empty())
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
-        .unwrap_or_else(|| PathBuf::from(".cache"));
-    cache.join("rig").join("inception-fid.safetensors")
+    crate::cache_root().join("inception-fid.safetensors")
 }
 
 /// `flag` if given, else `$RIG_INCEPTION_WEIGHTS`, else [`default_weights_path`].

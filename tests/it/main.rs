@@ -14,6 +14,7 @@ mod common;
 mod bench_sim;
 mod camera_sim;
 mod camera_v4l2;
+mod contact_cache;
 mod dataset_check;
 mod demo;
 mod fault_drills;

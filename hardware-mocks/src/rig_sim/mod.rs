@@ -79,6 +79,7 @@
 //! newest step is the newest one (held).
 
 mod physics;
+mod tape;
 
 use std::io;
 use std::net::SocketAddr;
@@ -102,6 +103,9 @@ use crate::ur5e::{Ur5e, Ur5eConfig};
 
 use physics::invalid;
 pub use physics::*;
+pub use tape::{
+    CROP_MM, ContactCache, MATCH_MM, MAX_DRIFT_NS, MAX_REST_SLIP_NS, TapeStats, cache_key,
+};
 
 /// How [`SimRig::start`] sets the simulated rig up beyond the rig config.
 #[derive(Debug, Clone)]
@@ -126,6 +130,10 @@ pub struct SimRigOptions {
     pub image_effects: Option<ImageEffects>,
     /// Noise seed of the camera's images.
     pub image_seed: u64,
+    /// The contact cache's root directory (`None`: no cache, every contact is solved): the
+    /// physics replays the episodes a run with the same gel, indenter and physics left there,
+    /// and leaves its own (simulate once, render per sensor; see [`ContactCache`]).
+    pub contact_cache: Option<std::path::PathBuf>,
 }
 
 impl Default for SimRigOptions {
@@ -140,6 +148,7 @@ impl Default for SimRigOptions {
             camera: None,
             image_effects: None,
             image_seed: 0,
+            contact_cache: None,
         }
     }
 }
@@ -255,12 +264,26 @@ impl SimRig {
         )));
         let ur5e = Arc::new(Ur5e::start(ur_cfg, clock.clone()).await?);
 
-        let physics = ContactPhysics::new(
+        let cache = match &opts.contact_cache {
+            Some(root) => Some(
+                ContactCache::open(root, &config.elastomer, &indenter, &opts.physics).map_err(
+                    |e| {
+                        io::Error::new(
+                            e.kind(),
+                            format!("contact cache in {}: {e}", root.display()),
+                        )
+                    },
+                )?,
+            ),
+            None => None,
+        };
+        let physics = ContactPhysics::with_cache(
             frame,
             config.elastomer.clone(),
             indenter,
             opts.physics.clone(),
             opts.camera.is_some(),
+            cache,
         )?;
         // The state at start, so the F/T and the camera have a sample from t = start.
         let (t_start, tip) = ur5e.tip_pose_now();
@@ -396,16 +419,18 @@ impl SimRig {
         self.camera.take()
     }
 
-    /// Stops every task and closes every socket.
+    /// Stops every task and closes every socket, and waits for the contact tapes being
+    /// written.
     pub async fn shutdown(self) {
         let SimRig {
             _runtime_pacer,
             ur5e,
-            physics: _,
+            physics,
             physics_task,
             ft,
             camera,
         } = self;
+        let flushing = tokio::task::spawn_blocking(move || physics.flush_tapes());
         _runtime_pacer.stop().await;
         drop(camera);
         ft.shutdown().await;
@@ -414,6 +439,7 @@ impl SimRig {
             Ok(ur) => ur.shutdown().await,
             Err(ur) => drop(ur),
         }
+        let _ = flushing.await;
     }
 }
 

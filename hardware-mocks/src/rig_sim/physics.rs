@@ -23,6 +23,8 @@ use crate::sim::{
 };
 use crate::truth::WrenchSource;
 
+use super::tape::{ContactCache, Episode, TapeStats};
+
 /// Default physics rate, Hz of clock time: two contact states per frame of a 25 fps camera.
 /// The F/T twins read the wrench interpolated linearly between them (20 µm of motion apart at
 /// the plan's 1 mm/s).
@@ -161,6 +163,8 @@ pub fn wrench_at_tip(w: &Wrench, depth_mm: f64) -> Wrench {
 /// The solver side: held for the whole of a step (milliseconds).
 struct SolverState {
     sim: Simulator,
+    /// The contact episode under way: replayed from the contact cache, or solved.
+    episode: Episode,
     /// The unloaded field, computed once (out-of-contact frames).
     flat_field: Option<Arc<SurfaceField>>,
     in_contact: bool,
@@ -250,7 +254,7 @@ impl std::fmt::Debug for ContactPhysics {
 /// controller's last tick). The time asked for is never in the future.
 pub type PoseSource = Arc<dyn Fn(u64) -> (u64, Pose) + Send + Sync>;
 
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+pub(super) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
@@ -264,6 +268,20 @@ impl ContactPhysics {
         config: PhysicsConfig,
         want_field: bool,
     ) -> io::Result<Self> {
+        Self::with_cache(surface_frame, elastomer, indenter, config, want_field, None)
+    }
+
+    /// [`ContactPhysics::new`] that replays the contact episodes `cache` holds for this
+    /// physics, and adds the ones it solves (see the `tape` module: simulate once, render per
+    /// sensor). The cache must have been opened for the same elastomer, indenter and config.
+    pub fn with_cache(
+        surface_frame: Pose,
+        elastomer: ElastomerConfig,
+        indenter: Arc<Indenter>,
+        config: PhysicsConfig,
+        want_field: bool,
+        cache: Option<ContactCache>,
+    ) -> io::Result<Self> {
         config.validate()?;
         let history = config.history;
         Ok(Self {
@@ -275,6 +293,7 @@ impl ContactPhysics {
                 want_field,
                 solver: Mutex::new(SolverState {
                     sim: Simulator::new(),
+                    episode: Episode::new(cache),
                     flat_field: None,
                     in_contact: false,
                 }),
@@ -333,14 +352,18 @@ impl ContactPhysics {
             self.inner.contact_steps.fetch_add(1, Ordering::Relaxed);
             st.in_contact = true;
             let scene = self.scene_for(tcp);
-            st.sim.step(&scene, t_ns as f64 * 1e-9).map(|out| {
-                new_field = out.field.map(Arc::new);
-                wrench_at_tip(&out.wrench, raw.depth_mm)
-            })
+            let SolverState { sim, episode, .. } = &mut *st;
+            episode
+                .step(sim, &scene, t_ns, self.inner.want_field)
+                .map(|(w, solved, replayed)| {
+                    new_field = solved.map(Arc::new).or(replayed);
+                    wrench_at_tip(&w, raw.depth_mm)
+                })
         } else {
             if st.in_contact {
                 // The gel is unloaded: no stick/slip state survives lifting off.
                 st.sim.reset();
+                st.episode.end();
                 st.in_contact = false;
             }
             if self.inner.want_field {
@@ -456,6 +479,22 @@ impl ContactPhysics {
                 .fetch_max(t_ns.saturating_sub(*t), Ordering::Relaxed);
         }
         found
+    }
+
+    /// The contact cache's counters (`None`: the physics has no cache).
+    pub fn tape_stats(&self) -> Option<TapeStats> {
+        lock(&self.inner.solver)
+            .episode
+            .cache()
+            .map(ContactCache::stats)
+    }
+
+    /// Waits for the contact tapes being written (a no-op without a cache).
+    pub fn flush_tapes(&self) {
+        let cache = lock(&self.inner.solver).episode.cache().cloned();
+        if let Some(c) = cache {
+            c.flush();
+        }
     }
 
     /// The newest `(t_ns, wrench)` sample.

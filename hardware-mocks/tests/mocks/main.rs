@@ -7,6 +7,7 @@ mod contact_convergence;
 mod contact_effects;
 mod contact_hard_cases;
 mod contact_physics;
+mod contact_tape;
 mod nano17;
 mod optics_indenters;
 mod optics_render;
