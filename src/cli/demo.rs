@@ -27,22 +27,27 @@ pub struct DemoArgs {
     pub target: Option<PathBuf>,
 }
 
-pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
-    let target = match &args.target {
-        Some(path) => {
-            let c = rig_core::config::RigConfig::load(path)
-                .map_err(|e| anyhow::anyhow!("--target {}: {e}", path.display()))?;
-            if !c.robot.simulated {
-                anyhow::bail!(
-                    "--target {}: the demo records on the simulated rig; this config drives a \
-                     real robot (robot.simulated = false)",
-                    path.display()
-                );
-            }
-            Some(c)
-        }
-        None => None,
+/// The `--target` sensor's config: a simulated rig (the demo and the reproduction record on it).
+pub(super) fn sim_target(
+    path: Option<&std::path::Path>,
+) -> anyhow::Result<Option<rig_core::config::RigConfig>> {
+    let Some(path) = path else {
+        return Ok(None);
     };
+    let c = rig_core::config::RigConfig::load(path)
+        .map_err(|e| anyhow::anyhow!("--target {}: {e}", path.display()))?;
+    if !c.robot.simulated {
+        anyhow::bail!(
+            "--target {}: it is recorded on the simulated rig; this config drives a real robot \
+             (robot.simulated = false)",
+            path.display()
+        );
+    }
+    Ok(Some(c))
+}
+
+pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
+    let target = sim_target(args.target.as_deref())?;
     let table = demo::run(
         args.quick,
         &args.out,

@@ -3,7 +3,7 @@
 //! [`Cli`] is one clap-derived [`Command`] enum with one variant per subcommand; each variant's
 //! args struct and handler live in the subcommand's own file here (`plan.rs`: `rig plan` and
 //! `rig indenters`; `run.rs`, `ft.rs`, `sim.rs`, `dataset.rs`, `train.rs` (`train` and `eval`),
-//! `demo.rs`, `predict.rs`, and `bench/`), and [`run`] dispatches. To add a subcommand: a file with its
+//! `demo.rs`, `reproduce.rs`, `predict.rs`, and `bench/`), and [`run`] dispatches. To add a subcommand: a file with its
 //! `Args` and a handler, a variant, and an arm in [`run`]. Handlers return `anyhow::Result`
 //! with operator-facing messages; `main` prints them and exits with status 1 (clap itself exits
 //! with 2 on usage errors). Handlers that need async I/O build their own tokio runtime, so the
@@ -20,6 +20,7 @@ pub mod demo;
 pub mod ft;
 pub mod plan;
 pub mod predict;
+pub mod reproduce;
 pub mod run;
 pub mod sim;
 pub mod train;
@@ -60,6 +61,9 @@ pub enum Command {
     Eval(train::EvalArgs),
     /// The whole story on the simulated rig: collect, translate, train, evaluate.
     Demo(demo::DemoArgs),
+    /// The paper's experiment on the simulated rig: 18 indenters, 3 modalities, 3 methods, 3
+    /// seeds, with the paper's numbers and a verdict per claim.
+    Reproduce(reproduce::ReproduceArgs),
     /// A trained force model on the target sensor's camera (or a replayed recording): force
     /// estimates frame by frame, with a summary of frames, skipped frames, latency and error.
     Predict(predict::PredictArgs),
@@ -78,6 +82,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(args) => train::train(&args),
         Command::Eval(args) => train::eval(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Reproduce(args) => reproduce::run(&args),
         Command::Predict(args) => predict::run(&args),
     }
 }

@@ -46,30 +46,25 @@ pub struct RunArgs {
     /// while the run records (default 127.0.0.1:8765).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     pub live: Option<std::net::SocketAddr>,
-    /// Simulated rig only: where the contact physics keeps its tapes (simulate once, render per
-    /// sensor): a run replays the contact that a run with the same gel, indenter and physics
-    /// left there, so a second sensor's run renders its own optics only, and leaves the
-    /// contact it solves. Default: $RIG_CONTACT_CACHE (`off`: none), else ~/.cache/rig/contact.
-    #[arg(long, value_name = "DIR", conflicts_with = "no_contact_cache")]
+    /// Simulated rig only: keep the contact physics' tapes in DIR (default ~/.cache/rig/contact,
+    /// or $RIG_CONTACT_CACHE) and replay the ones a run with the same gel, indenter and physics
+    /// left there (simulate once, render per sensor): a second sensor's run renders its own
+    /// optics from the first's contact. About 1 MB a trajectory (254 MB for the cone's full
+    /// plan). Without it every contact is solved and nothing is kept.
+    #[arg(long, value_name = "DIR", num_args = 0..=1, default_missing_value = "")]
     pub contact_cache: Option<PathBuf>,
-    /// Simulated rig only: solve every contact, and keep no tapes.
-    #[arg(long)]
-    pub no_contact_cache: bool,
 }
 
 /// Where `rig run` keeps the simulated rig's contact tapes (see [`RunArgs::contact_cache`]).
 fn contact_cache_dir(args: &RunArgs) -> Option<PathBuf> {
-    if args.no_contact_cache {
-        return None;
-    }
-    if let Some(dir) = &args.contact_cache {
+    let dir = args.contact_cache.as_ref()?;
+    if !dir.as_os_str().is_empty() {
         return Some(dir.clone());
     }
-    match std::env::var_os("RIG_CONTACT_CACHE") {
-        Some(v) if v == "off" => None,
-        Some(v) if !v.is_empty() => Some(PathBuf::from(v)),
-        _ => Some(crate::cache_root().join("contact")),
-    }
+    Some(match std::env::var_os("RIG_CONTACT_CACHE") {
+        Some(v) if !v.is_empty() => PathBuf::from(v),
+        _ => crate::cache_root().join("contact"),
+    })
 }
 
 /// The simulated Nano17's front end (`rig run --sim-ft`).

@@ -400,14 +400,20 @@ pub fn translate(
     fs::write(out.join("translate-log.csv"), log)?;
 
     // Î_t: every source frame through G_s, with its source force.
-    let g = gan.gens.s2t.valid();
-    let plain = g_device(&gan.dev);
+    let set = through(&gan.gens.s2t.valid(), source, &g_device(&gan.dev))?;
+    super::data::write_prepared(&out.join("translated"), &set, "translated")?;
+    Ok(Translated { set, info })
+}
+
+/// Every frame of `source` through the generator `g`, with its source force.
+fn through(g: &Generator, source: &LabelledSet, dev: &Device) -> anyhow::Result<LabelledSet> {
+    let spec = source.spec;
     let mut trajs = Vec::with_capacity(source.trajectories.len());
     for t in &source.trajectories {
         let mut pixels = Vec::with_capacity(t.pixels.len());
         let frames: Vec<&[u8]> = (0..t.frames).map(|i| t.frame(i, &spec)).collect();
         for chunk in frames.chunks(16) {
-            for img in tensor_to_images(g.forward(images_to_tensor(chunk, &spec, &plain))) {
+            for img in tensor_to_images(g.forward(images_to_tensor(chunk, &spec, dev))) {
                 pixels.extend_from_slice(&img);
             }
         }
@@ -418,9 +424,45 @@ pub fn translate(
             frames: t.frames,
         });
     }
-    let set = source.with_images(spec, trajs)?;
-    super::data::write_prepared(&out.join("translated"), &set, "translated")?;
-    Ok(Translated { set, info })
+    source.with_images(spec, trajs)
+}
+
+/// The source images of `source` in the target's style, through the translator that
+/// [`translate`] saved in `tdir` (its `translator/` directory): for source frames it was not
+/// trained on, e.g. the unseen indenters'. The set must have the translator's image spec.
+pub fn apply_translator(tdir: &Path, source: &LabelledSet) -> anyhow::Result<LabelledSet> {
+    let info: TranslatorInfo =
+        serde_json::from_slice(&fs::read(tdir.join(INFO)).with_context(|| {
+            format!(
+                "no translator in {} (run the translation first)",
+                tdir.display()
+            )
+        })?)
+        .with_context(|| format!("{} is damaged", tdir.join(INFO).display()))?;
+    if info.spec != source.spec {
+        bail!(
+            "the translator in {} takes {}x{} {} images, the data are {}x{} {}",
+            tdir.display(),
+            info.spec.width,
+            info.spec.height,
+            info.spec.modality.name(),
+            source.spec.width,
+            source.spec.height,
+            source.spec.modality.name()
+        );
+    }
+    let dev = g_device(&super::force::device());
+    let mut g = Generator::new(&info.config.shape, &dev);
+    g.load_from(&mut SafetensorsStore::from_file(
+        tdir.join("g_s2t.safetensors"),
+    ))
+    .map_err(|e| {
+        anyhow::anyhow!(
+            "cannot read {}: {e:?}",
+            tdir.join("g_s2t.safetensors").display()
+        )
+    })?;
+    through(&g, source, &dev)
 }
 
 /// Writes the translator into `tdir`: its four networks and description, replaced as one

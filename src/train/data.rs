@@ -153,17 +153,30 @@ with_forces!(EvalSet);
 impl LabelledSet {
     /// Only the trajectories whose indenter is in the split's seen group.
     pub fn seen_only(self, split: &Split) -> Self {
+        self.filtered(|t| split.trains_on(&t.indenter))
+    }
+    /// Only the trajectories `keep` accepts, with their forces.
+    pub fn filtered(self, keep: impl Fn(&Trajectory) -> bool) -> Self {
         let (trajectories, forces) = self
             .trajectories
             .into_iter()
             .zip(self.forces)
-            .filter(|(t, _)| split.trains_on(&t.indenter))
+            .filter(|(t, _)| keep(t))
             .unzip();
         Self {
             spec: self.spec,
             trajectories,
             forces,
         }
+    }
+    /// This set's trajectories and then `other`'s, as one set (the same image spec).
+    pub fn joined(mut self, other: Self) -> anyhow::Result<Self> {
+        if self.spec != other.spec {
+            bail!("cannot join sets of two image specs");
+        }
+        self.trajectories.extend(other.trajectories);
+        self.forces.extend(other.forces);
+        Ok(self)
     }
     /// Keep the images, replace them by others of the same count (the translator's output).
     pub fn with_images(

@@ -126,16 +126,22 @@ impl DemoPlan {
 /// The simulated rig of one sensor at the demo's scale: the centre contact point, all depths,
 /// the demo's shear directions and distance, the demo's camera size.
 pub fn demo_config(base: RigConfig, plan: &DemoPlan) -> RigConfig {
-    let mut c = base;
+    let mut c = sized_camera(base, plan.camera, plan.fps);
     c.plan.contact_points_mm = vec![[0.0, 0.0]];
     c.plan.directions_deg = plan.directions_deg.clone();
     c.plan.shear_distance_mm = plan.shear_distance_mm;
-    let (w, h) = plan.camera;
+    c
+}
+
+/// A simulated sensor's config with its camera at `(w, h)` pixels and `fps`, seeing the same
+/// field of view (the optics' mm per pixel scaled with it).
+pub(super) fn sized_camera(base: RigConfig, (w, h): (u32, u32), fps: f64) -> RigConfig {
+    let mut c = base;
     if let Some(cam) = c.camera.as_mut() {
         let scale = cam.width_px as f64 / w as f64;
         cam.width_px = w;
         cam.height_px = h;
-        cam.fps = plan.fps;
+        cam.fps = fps;
         if let Some(o) = c.optics.as_mut() {
             o.width_px = w;
             o.height_px = h;
@@ -145,11 +151,18 @@ pub fn demo_config(base: RigConfig, plan: &DemoPlan) -> RigConfig {
     c
 }
 
-fn collect(config: &RigConfig, indenter: &str, out: &Path, progress: bool) -> anyhow::Result<()> {
+/// Records `indenter`'s plan on `config` into `out`, or resumes it there; `false` when `out`
+/// already held a complete recording.
+pub(super) fn collect(
+    config: &RigConfig,
+    indenter: &str,
+    out: &Path,
+    progress: bool,
+) -> anyhow::Result<bool> {
     let ind = Indenter::load(indenter)?;
     let resume = out.join("manifest.json").is_file();
     if resume && crate::dataset::check(out).ok() {
-        return Ok(());
+        return Ok(false);
     }
     let opts = crate::run::RunOptions {
         resume,
@@ -169,7 +182,7 @@ fn collect(config: &RigConfig, indenter: &str, out: &Path, progress: bool) -> an
             crate::dataset::render(&report)
         );
     }
-    Ok(())
+    Ok(true)
 }
 
 /// Run the demo; returns the table (also written to `<out>/results.*`). `inception` names the
@@ -260,13 +273,8 @@ pub fn run(
         let tf = std::time::Instant::now();
         let source_images = data::load_unlabelled(&src_dir, &rgbm, false)?;
         let translated_images = translated.set.images();
-        table.fid = eval::fid_rows(
-            &[
-                ("I_s", &source_images),
-                ("I_t", &target_images),
-                ("Î_t", &translated_images),
-            ],
-            &[(0, 1), (2, 1), (0, 2)],
+        table.fid = eval::translation_fid(
+            [&source_images, &target_images, &translated_images],
             &split,
             &plan.fid,
             net.as_ref().ok(),
@@ -335,7 +343,7 @@ pub fn run(
 
 /// Trains one force model into `dir` and says how it went (no progress bar: trainings run side
 /// by side).
-fn train_force(
+pub(super) fn train_force(
     set: &data::LabelledSet,
     cfg: &ForceConfig,
     name: &str,

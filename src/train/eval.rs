@@ -314,6 +314,25 @@ fn group_features(
     Ok(GroupFeatures { colour, inception })
 }
 
+/// The translation's FID/KID rows: I_s–I_t (before), Î_t–I_t (after) and I_s–Î_t, from the
+/// source, target and translated images (`[I_s, I_t, Î_t]`).
+pub fn translation_fid(
+    [source, target, translated]: [&UnlabelledSet; 3],
+    split: &Split,
+    cfg: &FidConfig,
+    net: Option<&Inception>,
+    progress: bool,
+) -> anyhow::Result<Vec<FidRow>> {
+    fid_rows(
+        &[("I_s", source), ("I_t", target), ("Î_t", translated)],
+        &[(0, 1), (2, 1), (0, 2)],
+        split,
+        cfg,
+        net,
+        progress,
+    )
+}
+
 /// FID, KID and the colour-statistics distance between named image sets: one row per pair
 /// (`sets[i]`, `sets[j]`, named "i–j") and indenter group present in both. Each set's sample is
 /// passed through Inception once, however many pairs it is in. Without `net` the FID and KID

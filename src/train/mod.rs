@@ -12,6 +12,7 @@
 //!   FID/KID; Markdown, CSV and plots).
 //! - [`inception`]: the FID Inception-v3 whose features FID and KID are computed on.
 //! - [`demo`]: the whole story of `rig demo` on the simulated rig.
+//! - [`reproduce`]: the paper's experiment, `rig reproduce`.
 //!
 //! The commands themselves are in `crate::cli::train` and `crate::cli::demo`.
 
@@ -27,6 +28,7 @@ pub mod metrics;
 pub mod modality;
 pub mod nn;
 pub mod report;
+pub mod reproduce;
 
 pub use config::{DataConfig, TrainerConfig};
 

@@ -28,6 +28,7 @@ mod plan_cli;
 mod predict;
 mod record_pipeline;
 mod recording_format;
+mod reproduce;
 mod robot_faults;
 mod robot_motion;
 mod rtde_codec_props;

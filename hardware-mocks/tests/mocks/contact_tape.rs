@@ -5,7 +5,7 @@
 //! The runs drive [`ContactPhysics::update`] directly along a press of the plan's shape (down
 //! at 1 mm/s, a rest, a 2 mm slide at 2 mm/s, a rest, back, up) on the physics' 50 Hz grid,
 //! with the off-grid steps the F/T twins ask for at stage starts. The replaying run's motion
-//! starts 7.3 ms later on the grid than the recording's and rests 3 ms longer at the end of
+//! starts 7.3 ms later on the grid than the recording's and rests 80 ms longer at the end of
 //! its slide, as two runs of the rig do: its grid samples other poses than the tape has.
 
 use std::path::Path;
@@ -204,10 +204,11 @@ fn a_second_run_with_the_same_gel_replays_the_tape_and_gets_the_live_contact() {
     let contact_steps = recorded.iter().filter(|s| s.at[2] > 0.0).count() as u64;
     assert_eq!(s.solved_steps, contact_steps);
 
-    // The second sensor's run: the same gel, another phase of the grid, a longer rest.
+    // The second sensor's run: the same gel, another phase of the grid, a rest 80 ms longer
+    // (two runs' pauses between stages differ by that much at ×20).
     let second = Press {
         delay_ns: 7_300_000,
-        extra_rest_ns: 3_000_000,
+        extra_rest_ns: 80_000_000,
         ..first
     };
     let cache = open(dir.path(), &gel);

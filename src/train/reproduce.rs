@@ -1,0 +1,924 @@
+//! `rig reproduce`: the TransForce paper's experiment on the simulated rig, with the paper's
+//! numbers beside ours.
+//!
+//! The protocol (Chen et al., TransForce; see the design references): the 18 indenters with
+//! the paper's split (unseen: sphere_s, triangle, pacman, wave, torus, cone; seen: the other
+//! 12; `paralines`, the paper's failure case of translation, is left out), a source and a
+//! target sensor, every contact point and depth of the plan, the three modalities (R, M, R+M)
+//! and the three methods (source-only with the LSTM, TransForce without the LSTM, TransForce),
+//! each force model over several seeds.
+//!
+//! Phases, each resumable: a killed run continues where it stopped (recording with
+//! `rig run --resume`'s logic, the translator once complete, each force model from its last
+//! checkpoint; the evaluation and the report are recomputed, they take seconds).
+//!
+//! 1. **collect**: each indenter's plan on both sensors (`data/source/<indenter>`,
+//!    `data/target/<indenter>`);
+//! 2. **translate**: one CycleGAN on the seen indenters' source and target images; then the
+//!    seen and the unseen source images through it (`translate/translated`,
+//!    `translate/translated-unseen`). One translator serves every seed: the seeds vary the
+//!    force models (initial weights and batch order), not the translation;
+//! 3. **fid**: FID and KID (Inception-v3) of I_s–I_t, Î_t–I_t and I_s–Î_t, seen and unseen;
+//! 4. **train**: methods × modalities × seeds force models, two at a time;
+//! 5. **evaluate** on the target sensor, and **report**: `results/reproduce.md` (tables with
+//!    the paper's numbers, verdicts per claim, wall time per phase), `results/rows.json`,
+//!    `figures/samples-{seen,unseen}.png` (I_s | Î_t | I_t).
+//!
+//! Scales: `tiny` (the tests: 3 indenters, a few trajectories, tiny networks), `cpu` (the whole
+//! split at a size 2 cores can run: 4 of the 12 directions, 160 × 120 frames at 10 fps,
+//! 32 × 24 network input), `paper` (the full plan, 320 × 240 frames at 25 fps, ResNet-50: for
+//! a GPU machine).
+
+use std::collections::BTreeMap;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use rig_core::config::RigConfig;
+use serde::{Deserialize, Serialize};
+
+use super::cyclegan::{self, TranslateConfig};
+use super::data::{self, ImageSpec, LabelledSet, PAPER_EXCLUDED, PAPER_UNSEEN, Split};
+use super::demo::{collect, sized_camera, train_force};
+use super::eval::{self, FidConfig};
+use super::force::ForceConfig;
+use super::modality::Modality;
+use super::nn::{Depth, GanShape};
+use super::report::{FidRow, Row};
+
+/// How big a reproduction to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+pub enum Scale {
+    /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
+    Tiny,
+    /// The whole split at a size 2 CPU cores run in about two hours.
+    Cpu,
+    /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
+    Paper,
+}
+
+/// The methods, in the paper's order: (name, trained on translated images, LSTM).
+const METHODS: [(&str, bool, bool); 3] = [
+    ("source-only", false, true),
+    ("TransForce (no LSTM)", true, false),
+    ("TransForce", true, true),
+];
+
+/// The paper's reported results on its real sensors (seen group, LSTM): MAE Fx and Fy with
+/// the marker modality, Fz with R+M (N), their work range (N: Fx, Fy ±6, Fz −16..0), the best
+/// R² per axis, and FID before (I_s–I_t) and after (Î_t–I_t) translation, seen and unseen.
+pub const PAPER_MAE_N: [f64; 3] = [0.695, 0.701, 1.112];
+pub const PAPER_RANGE_N: [f64; 3] = [12.0, 12.0, 16.0];
+pub const PAPER_R2: [f64; 3] = [0.69, 0.66, 0.79];
+pub const PAPER_FID_BEFORE: [f64; 2] = [81.1, 87.9];
+pub const PAPER_FID_AFTER: [f64; 2] = [18.3, 21.3];
+
+/// The protocol at one scale.
+#[derive(Debug, Clone)]
+pub struct Protocol {
+    pub scale: Scale,
+    pub seen: Vec<String>,
+    pub unseen: Vec<String>,
+    pub contact_points_mm: Vec<[f64; 2]>,
+    pub depths_mm: Vec<f64>,
+    pub directions_deg: Vec<f64>,
+    pub camera: (u32, u32),
+    pub fps: f64,
+    pub spec: (u32, u32),
+    pub modalities: Vec<Modality>,
+    pub seeds: Vec<u64>,
+    pub translate: TranslateConfig,
+    pub force: ForceConfig,
+    pub fid: FidConfig,
+}
+
+impl Protocol {
+    pub fn new(scale: Scale) -> Self {
+        // The built-in set is the paper's 18 and `paralines`.
+        let paper_seen: Vec<String> = rig_core::indenter::Indenter::list_builtin()
+            .iter()
+            .filter(|i| !PAPER_UNSEEN.contains(i) && !PAPER_EXCLUDED.contains(i))
+            .map(|s| s.to_string())
+            .collect();
+        let paper_unseen: Vec<String> = PAPER_UNSEEN.iter().map(|s| s.to_string()).collect();
+        let all_points = vec![
+            [0.0, 0.0],
+            [-3.0, -2.0],
+            [3.0, -2.0],
+            [-3.0, 2.0],
+            [3.0, 2.0],
+        ];
+        let small_gan = TranslateConfig {
+            shape: GanShape {
+                ngf: 8,
+                ndf: 8,
+                res_blocks: 2,
+                disc_layers: 2,
+            },
+            lr: 1e-3,
+            batch: 4,
+            ..TranslateConfig::default()
+        };
+        let small_force = ForceConfig {
+            depth: Depth::R18,
+            width: 8,
+            batch: 16,
+            lr: 2e-3,
+            lr_final: Some(2e-4),
+            ..ForceConfig::default()
+        };
+        match scale {
+            Scale::Tiny => Self {
+                scale,
+                seen: vec!["sphere".into(), "hemisphere".into()],
+                unseen: vec!["cone".into()],
+                contact_points_mm: vec![[0.0, 0.0]],
+                depths_mm: vec![0.8],
+                directions_deg: vec![0.0, 90.0],
+                camera: (160, 120),
+                fps: 10.0,
+                spec: (32, 24),
+                modalities: Modality::ALL.to_vec(),
+                seeds: vec![1],
+                translate: TranslateConfig {
+                    epochs: 1,
+                    steps_per_epoch: Some(20),
+                    ..small_gan
+                },
+                force: ForceConfig {
+                    epochs: 2,
+                    ..small_force
+                },
+                fid: FidConfig {
+                    max_images: 16,
+                    ..FidConfig::default()
+                },
+            },
+            Scale::Cpu => Self {
+                scale,
+                seen: paper_seen,
+                unseen: paper_unseen,
+                contact_points_mm: all_points,
+                depths_mm: vec![0.2, 0.4, 0.6, 0.8],
+                // Four of the twelve: both shear axes, both ways.
+                directions_deg: vec![0.0, 90.0, 180.0, 270.0],
+                camera: (160, 120),
+                fps: 10.0,
+                spec: (32, 24),
+                modalities: Modality::ALL.to_vec(),
+                seeds: vec![1, 2, 3],
+                translate: TranslateConfig {
+                    epochs: 6,
+                    steps_per_epoch: Some(250),
+                    ..small_gan
+                },
+                // About 960 Adam steps of 16 sequences (960 training trajectories, 4
+                // sequences each): the quick demo's models settle in 720.
+                force: ForceConfig {
+                    epochs: 4,
+                    ..small_force
+                },
+                fid: FidConfig {
+                    max_images: 256,
+                    ..FidConfig::default()
+                },
+            },
+            Scale::Paper => Self {
+                scale,
+                seen: paper_seen,
+                unseen: paper_unseen,
+                contact_points_mm: all_points,
+                depths_mm: vec![0.2, 0.4, 0.6, 0.8],
+                directions_deg: (0..12).map(|k| k as f64 * 30.0).collect(),
+                camera: (320, 240),
+                fps: 25.0,
+                spec: (128, 96),
+                modalities: Modality::ALL.to_vec(),
+                seeds: vec![1, 2, 3],
+                // The paper's: 30 epochs at 2e-4 (its defaults).
+                translate: TranslateConfig {
+                    epochs: 30,
+                    steps_per_epoch: Some(1000),
+                    ..TranslateConfig::default()
+                },
+                force: ForceConfig {
+                    depth: Depth::R50,
+                    width: 64,
+                    epochs: 20,
+                    ..ForceConfig::default()
+                },
+                fid: FidConfig::default(),
+            },
+        }
+    }
+
+    /// The split: the protocol's unseen group, `paralines` excluded.
+    pub fn split(&self) -> Split {
+        Split {
+            unseen: self.unseen.clone(),
+            ..Split::default()
+        }
+    }
+
+    /// A sensor's rig config at this protocol's plan and camera.
+    pub fn rig_config(&self, base: RigConfig) -> RigConfig {
+        let mut c = sized_camera(base, self.camera, self.fps);
+        c.plan.contact_points_mm = self.contact_points_mm.clone();
+        c.plan.depths_mm = self.depths_mm.clone();
+        c.plan.directions_deg = self.directions_deg.clone();
+        c
+    }
+
+    fn trajectories_per_sensor(&self) -> usize {
+        self.contact_points_mm.len() * self.depths_mm.len() * self.directions_deg.len()
+    }
+}
+
+/// Wall time per phase, s, kept in `<out>/phases.json` across resumed runs (a phase done by an
+/// earlier run keeps that run's time).
+#[derive(Debug, Default, Serialize, Deserialize)]
+struct Phases(BTreeMap<String, f64>);
+
+impl Phases {
+    fn load(out: &Path) -> Self {
+        std::fs::read(out.join("phases.json"))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .unwrap_or_default()
+    }
+    fn done(&mut self, out: &Path, phase: &str, t0: Instant, did_work: bool) -> anyhow::Result<()> {
+        let s = t0.elapsed().as_secs_f64();
+        if did_work || !self.0.contains_key(phase) {
+            self.0.insert(phase.to_owned(), s);
+        }
+        crate::durable::write_atomic(&out.join("phases.json"), &serde_json::to_vec_pretty(self)?)?;
+        eprintln!("      {phase}: {s:.0} s");
+        Ok(())
+    }
+}
+
+/// One row aggregated over seeds: mean and sample standard deviation.
+#[derive(Debug, Clone, Serialize)]
+pub struct Aggregate {
+    pub method: String,
+    pub modality: String,
+    pub group: String,
+    pub seeds: usize,
+    pub mae: [f64; 3],
+    pub mae_sd: [f64; 3],
+    pub r2: [f64; 3],
+    pub r2_sd: [f64; 3],
+    pub total_mae: f64,
+    pub total_mae_sd: f64,
+}
+
+fn mean_sd(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let sd = if v.len() > 1 {
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    (m, sd)
+}
+
+/// The rows of every seed, grouped by method, modality and group.
+pub fn aggregate(rows: &[Row]) -> Vec<Aggregate> {
+    let mut groups: BTreeMap<(String, String, String), Vec<&Row>> = BTreeMap::new();
+    for r in rows {
+        groups
+            .entry((r.method.clone(), r.modality.clone(), r.group.clone()))
+            .or_default()
+            .push(r);
+    }
+    let mut out: Vec<Aggregate> = groups
+        .into_iter()
+        .map(|((method, modality, group), rs)| {
+            let axis =
+                |f: &dyn Fn(&Row) -> f64| mean_sd(&rs.iter().map(|r| f(r)).collect::<Vec<_>>());
+            let mae: [(f64, f64); 3] = std::array::from_fn(|a| axis(&|r| r.mae[a]));
+            let r2: [(f64, f64); 3] = std::array::from_fn(|a| axis(&|r| r.r2[a]));
+            let total = axis(&|r| r.total_mae);
+            Aggregate {
+                method,
+                modality,
+                group,
+                seeds: rs.len(),
+                mae: mae.map(|x| x.0),
+                mae_sd: mae.map(|x| x.1),
+                r2: r2.map(|x| x.0),
+                r2_sd: r2.map(|x| x.1),
+                total_mae: total.0,
+                total_mae_sd: total.1,
+            }
+        })
+        .collect();
+    let order = |m: &str| METHODS.iter().position(|x| x.0 == m).unwrap_or(9);
+    out.sort_by(|a, b| {
+        (a.group.as_str(), order(&a.method), a.modality.as_str()).cmp(&(
+            b.group.as_str(),
+            order(&b.method),
+            b.modality.as_str(),
+        ))
+    });
+    out
+}
+
+/// The best (lowest mean MAE) modality of `method` in `group` on `axis`.
+fn best<'a>(agg: &'a [Aggregate], method: &str, group: &str, axis: usize) -> Option<&'a Aggregate> {
+    agg.iter()
+        .filter(|a| a.method == method && a.group == group)
+        .min_by(|a, b| a.mae[axis].total_cmp(&b.mae[axis]))
+}
+
+const AXES: [&str; 3] = ["Fx", "Fy", "Fz"];
+
+/// One claim of the paper and what our numbers say of it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Verdict {
+    pub claim: String,
+    /// "reproduced", "refuted" or "not measured".
+    pub outcome: String,
+    pub evidence: String,
+}
+
+/// The verdicts: TransForce against source-only, the LSTM against its control (shear and
+/// normal force), the modality finding, the accuracy target and the translation's FID.
+pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdict> {
+    let mut out = Vec::new();
+    let outcome = |ok: Option<bool>| {
+        match ok {
+            Some(true) => "reproduced",
+            Some(false) => "refuted",
+            None => "not measured",
+        }
+        .to_owned()
+    };
+    let groups = ["seen", "unseen"];
+
+    // 1. TransForce beats source-only, best modality per axis, each group.
+    let mut ev = Vec::new();
+    let mut ok = Some(true);
+    let mut ratio_min = f64::INFINITY;
+    for g in groups {
+        for (a, name) in AXES.iter().enumerate() {
+            match (
+                best(agg, "TransForce", g, a),
+                best(agg, "source-only", g, a),
+            ) {
+                (Some(t), Some(s)) => {
+                    let r = s.mae[a] / t.mae[a];
+                    ratio_min = ratio_min.min(r);
+                    ok = ok.map(|o| o && r > 1.0);
+                    ev.push(format!(
+                        "{g} {name}: {:.3} N ({}) against {:.3} N ({}), ×{r:.1}",
+                        t.mae[a], t.modality, s.mae[a], s.modality
+                    ));
+                }
+                _ => ok = None,
+            }
+        }
+    }
+    out.push(Verdict {
+        claim: "TransForce predicts the target sensor's force better than a model trained on \
+                the source sensor alone (best modality per axis, seen and unseen)"
+            .into(),
+        outcome: outcome(ok),
+        evidence: format!(
+            "{}; smallest margin ×{ratio_min:.1} (the issue's bar: ×3)",
+            ev.join("; ")
+        ),
+    });
+
+    // 2. The LSTM helps, on shear and on normal force.
+    for (label, axes) in [
+        ("shear (Fx, Fy)", &[0usize, 1][..]),
+        ("normal force (Fz)", &[2][..]),
+    ] {
+        let mut ev = Vec::new();
+        let mut ok = Some(true);
+        for g in groups {
+            for &a in axes {
+                match (
+                    best(agg, "TransForce", g, a),
+                    best(agg, "TransForce (no LSTM)", g, a),
+                ) {
+                    (Some(l), Some(n)) => {
+                        ok = ok.map(|o| o && l.mae[a] < n.mae[a]);
+                        ev.push(format!(
+                            "{g} {}: {:.3} N with, {:.3} N without",
+                            AXES[a], l.mae[a], n.mae[a]
+                        ));
+                    }
+                    _ => ok = None,
+                }
+            }
+        }
+        out.push(Verdict {
+            claim: format!("The LSTM over the frame sequence improves {label}"),
+            outcome: outcome(ok),
+            evidence: ev.join("; "),
+        });
+    }
+
+    // 3. The modality finding (TransForce, seen): M best for shear, R+M best for normal force.
+    let modality_of = |a: usize| best(agg, "TransForce", "seen", a).map(|b| b.modality.clone());
+    let found = [modality_of(0), modality_of(1), modality_of(2)];
+    let ok = if found.iter().all(Option::is_some) {
+        Some(
+            found[0].as_deref() == Some("M")
+                && found[1].as_deref() == Some("M")
+                && found[2].as_deref() == Some("R+M"),
+        )
+    } else {
+        None
+    };
+    out.push(Verdict {
+        claim: "Markers (M) are best for shear, R+M for normal force (TransForce, seen)".into(),
+        outcome: outcome(ok),
+        evidence: format!(
+            "best modality: Fx {}, Fy {}, Fz {}",
+            found[0].as_deref().unwrap_or("-"),
+            found[1].as_deref().unwrap_or("-"),
+            found[2].as_deref().unwrap_or("-")
+        ),
+    });
+
+    // 4. The accuracy target: TransForce's best modality within 5 % of the range.
+    let mut ev = Vec::new();
+    let mut ok = Some(true);
+    for g in groups {
+        let pct: Vec<String> = (0..3)
+            .map(|a| match best(agg, "TransForce", g, a) {
+                Some(b) => {
+                    let p = 100.0 * b.mae[a] / range[a];
+                    ok = ok.map(|o| o && p <= 5.0);
+                    format!("{} {p:.1} %", AXES[a])
+                }
+                None => {
+                    ok = None;
+                    format!("{} -", AXES[a])
+                }
+            })
+            .collect();
+        ev.push(format!("{g}: {}", pct.join(", ")));
+    }
+    out.push(Verdict {
+        claim: "TransForce's MAE is within 5 % of the force range on every axis (the paper: \
+                5.8 / 5.8 / 6.9 %)"
+            .into(),
+        outcome: outcome(ok),
+        evidence: format!(
+            "{} (range {:.2} / {:.2} / {:.2} N)",
+            ev.join("; "),
+            range[0],
+            range[1],
+            range[2]
+        ),
+    });
+
+    // 5. Translation: FID(Î_t, I_t) below a third of FID(I_s, I_t).
+    let fid_of = |g: &str, pair: &str| {
+        fid.iter()
+            .find(|r| r.group == g && r.pair == pair)
+            .and_then(|r| r.fid)
+    };
+    let mut ev = Vec::new();
+    let mut ok = Some(true);
+    for g in groups {
+        match (fid_of(g, "I_s–I_t"), fid_of(g, "Î_t–I_t")) {
+            (Some(before), Some(after)) => {
+                ok = ok.map(|o| o && after < before / 3.0);
+                ev.push(format!(
+                    "{g}: {before:.1} → {after:.1} (×{:.2})",
+                    after / before
+                ));
+            }
+            _ => {
+                ok = None;
+                ev.push(format!("{g}: -"));
+            }
+        }
+    }
+    out.push(Verdict {
+        claim: "Translation brings the source images close to the target's: FID(Î_t, I_t) \
+                below a third of FID(I_s, I_t) (the paper: 81.1 → 18.3 seen, 87.9 → 21.3 unseen)"
+            .into(),
+        outcome: outcome(ok),
+        evidence: ev.join("; "),
+    });
+    out
+}
+
+/// Everything `rig reproduce` found.
+#[derive(Debug, Serialize)]
+pub struct Reproduction {
+    pub scale: Scale,
+    pub rows: Vec<Row>,
+    pub aggregate: Vec<Aggregate>,
+    pub fid: Vec<FidRow>,
+    pub fid_notes: Vec<String>,
+    /// The target labels' range per axis, N (max − min over every frame).
+    pub range_n: [f64; 3],
+    pub verdicts: Vec<Verdict>,
+    pub phases_s: BTreeMap<String, f64>,
+}
+
+/// Runs (or resumes) the protocol into `out`. See the module docs.
+pub fn run(
+    protocol: &Protocol,
+    out: &Path,
+    inception: Option<&Path>,
+    target: Option<&RigConfig>,
+) -> anyhow::Result<Reproduction> {
+    let progress = std::io::stderr().is_terminal();
+    std::fs::create_dir_all(out)?;
+    let net = eval::load_inception(inception, protocol.fid.batch)?;
+    let mut phases = Phases::load(out);
+    let split = protocol.split();
+    let source_cfg = protocol.rig_config(RigConfig::sim_source());
+    let target_cfg = protocol.rig_config(target.cloned().unwrap_or_else(RigConfig::sim_target));
+    let (src_dir, tgt_dir) = (out.join("data/source"), out.join("data/target"));
+    let indenters: Vec<&String> = protocol.seen.iter().chain(&protocol.unseen).collect();
+
+    // 1. Collect.
+    let t = Instant::now();
+    eprintln!(
+        "[1/5] collecting: {} indenters × {} trajectories × 2 sensors",
+        indenters.len(),
+        protocol.trajectories_per_sensor()
+    );
+    let mut recorded = false;
+    for ind in &indenters {
+        for (cfg, dir) in [(&source_cfg, &src_dir), (&target_cfg, &tgt_dir)] {
+            recorded |= collect(cfg, ind, &dir.join(ind.as_str()), progress)?;
+        }
+    }
+    phases.done(out, "collect", t, recorded)?;
+
+    // 2. Translate (seen indenters), then the unseen source images through the translator.
+    let t = Instant::now();
+    let rgbm = ImageSpec {
+        width: protocol.spec.0,
+        height: protocol.spec.1,
+        modality: Modality::RgbMarker,
+    };
+    let tdir = out.join("translate");
+    let done = tdir.join("DONE");
+    let source_all = data::load_labelled(&src_dir, &rgbm, progress)?;
+    let (source_seen, source_unseen) = partition(source_all, &split);
+    let target_images = data::load_unlabelled(&tgt_dir, &rgbm, progress)?;
+    let translating = !done.is_file();
+    if translating {
+        eprintln!("[2/5] translating source → target style (CycleGAN, seen indenters)");
+        let mut target_seen = target_images.clone();
+        target_seen
+            .trajectories
+            .retain(|t| split.trains_on(&t.indenter));
+        cyclegan::translate(
+            &source_seen,
+            &target_seen,
+            &protocol.translate,
+            &tdir,
+            progress,
+        )?;
+        let unseen = cyclegan::apply_translator(&tdir.join("translator"), &source_unseen)?;
+        data::write_prepared(&tdir.join("translated-unseen"), &unseen, "translated")?;
+        std::fs::write(&done, b"")?;
+    } else {
+        eprintln!("[2/5] translation: done earlier");
+    }
+    phases.done(out, "translate", t, translating)?;
+    let translated_seen = data::load_labelled(&tdir.join("translated"), &rgbm, false)?;
+    let translated_unseen = data::load_labelled(&tdir.join("translated-unseen"), &rgbm, false)?;
+    std::fs::create_dir_all(out.join("figures"))?;
+    for (name, s, tr) in [
+        ("seen", &source_seen, &translated_seen),
+        ("unseen", &source_unseen, &translated_unseen),
+    ] {
+        sample_grid(s, tr, &target_images, 4)?
+            .save(out.join(format!("figures/samples-{name}.png")))?;
+    }
+
+    // 3. FID and KID.
+    let t = Instant::now();
+    eprintln!("[3/5] FID and KID (Inception-v3)");
+    let fid_file = out.join("results/fid.json");
+    let (fid, fid_notes, fid_work) = match std::fs::read(&fid_file)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<(Vec<FidRow>, Vec<String>)>(&b).ok())
+    {
+        Some((rows, notes)) if net.is_err() || rows.iter().all(|r| r.fid.is_some()) => {
+            (rows, notes, false)
+        }
+        _ => {
+            let source_images = images_of(&source_seen, &source_unseen);
+            let translated_images = images_of(&translated_seen, &translated_unseen);
+            let rows = eval::translation_fid(
+                [&source_images, &target_images, &translated_images],
+                &split,
+                &protocol.fid,
+                net.as_ref().ok(),
+                progress,
+            )?;
+            let notes = eval::fid_notes(&net, &rows, &protocol.fid);
+            std::fs::create_dir_all(out.join("results"))?;
+            crate::durable::write_atomic(&fid_file, &serde_json::to_vec_pretty(&(&rows, &notes))?)?;
+            (rows, notes, true)
+        }
+    };
+    phases.done(out, "fid", t, fid_work)?;
+
+    // 4. Train: methods × modalities × seeds, two at a time.
+    let t = Instant::now();
+    let mut jobs: Vec<(String, Modality, u64, PathBuf, bool, bool)> = Vec::new();
+    for &seed in &protocol.seeds {
+        for &m in &protocol.modalities {
+            for (name, translated, lstm) in METHODS {
+                let dir = out.join(format!(
+                    "models/{}-{}-s{seed}",
+                    eval::slug(name),
+                    eval::slug(m.name())
+                ));
+                jobs.push((name.to_owned(), m, seed, dir, translated, lstm));
+            }
+        }
+    }
+    eprintln!(
+        "[4/5] training {} force models ({} methods × {} modalities × {} seeds)",
+        jobs.len(),
+        METHODS.len(),
+        protocol.modalities.len(),
+        protocol.seeds.len()
+    );
+    let trained = std::sync::atomic::AtomicBool::new(false);
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let train_one = |(name, m, seed, dir, translated, lstm): &(
+        String,
+        Modality,
+        u64,
+        PathBuf,
+        bool,
+        bool,
+    )|
+     -> anyhow::Result<()> {
+        if dir.join("DONE").is_file() {
+            return Ok(());
+        }
+        let spec = ImageSpec {
+            modality: *m,
+            ..rgbm
+        };
+        let set = if *translated {
+            data::load_labelled(&tdir.join("translated"), &spec, false)?
+        } else {
+            data::load_labelled(&src_dir, &spec, false)?
+        }
+        .seen_only(&split);
+        let cfg = ForceConfig {
+            lstm: *lstm,
+            seed: *seed,
+            ..protocol.force.clone()
+        };
+        train_force(&set, &cfg, name, *m, dir)?;
+        std::fs::write(dir.join("DONE"), b"")?;
+        trained.store(true, std::sync::atomic::Ordering::Relaxed);
+        Ok(())
+    };
+    std::thread::scope(|s| -> anyhow::Result<()> {
+        let worker = || -> anyhow::Result<()> {
+            loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(job) = jobs.get(i) else {
+                    return Ok(());
+                };
+                train_one(job).with_context(|| format!("training {}", job.3.display()))?;
+            }
+        };
+        let other = s.spawn(worker);
+        worker()?;
+        other
+            .join()
+            .map_err(|_| anyhow::anyhow!("a training thread panicked"))?
+    })?;
+    phases.done(
+        out,
+        "train",
+        t,
+        trained.load(std::sync::atomic::Ordering::Relaxed),
+    )?;
+
+    // 5. Evaluate on the target sensor, and report.
+    let t = Instant::now();
+    eprintln!("[5/5] evaluating on the target sensor");
+    let mut rows = Vec::new();
+    for (_, _, seed, dir, _, _) in &jobs {
+        let name = dir.file_name().map(|n| n.to_string_lossy().into_owned());
+        let plots = out.join("results/models").join(name.unwrap_or_default());
+        for mut r in eval::evaluate(dir, &tgt_dir, &plots, &split, progress)? {
+            r.method = format!("{}#{seed}", r.method);
+            rows.push(r);
+        }
+    }
+    let seedless: Vec<Row> = rows
+        .iter()
+        .map(|r| Row {
+            method: r.method.split('#').next().unwrap_or_default().to_owned(),
+            ..r.clone()
+        })
+        .collect();
+    let agg = aggregate(&seedless);
+    let target_eval = data::load_eval(&tgt_dir, &rgbm, false)?;
+    let mut bounds = [(f32::INFINITY, f32::NEG_INFINITY); 3];
+    for i in 0..target_eval.trajectories.len() {
+        for f in target_eval.forces(i) {
+            for a in 0..3 {
+                bounds[a] = (bounds[a].0.min(f[a]), bounds[a].1.max(f[a]));
+            }
+        }
+    }
+    let range_n: [f64; 3] = std::array::from_fn(|a| (bounds[a].1 - bounds[a].0) as f64);
+    let verdicts = verdicts(&agg, range_n, &fid);
+    phases.done(out, "evaluate", t, true)?;
+    let result = Reproduction {
+        scale: protocol.scale,
+        rows,
+        aggregate: agg,
+        fid,
+        fid_notes,
+        range_n,
+        verdicts,
+        phases_s: phases.0.clone(),
+    };
+    let results = out.join("results");
+    std::fs::create_dir_all(&results)?;
+    crate::durable::write_atomic(
+        &results.join("rows.json"),
+        &serde_json::to_vec_pretty(&result)?,
+    )?;
+    crate::durable::write_atomic(&results.join("reproduce.md"), markdown(&result).as_bytes())?;
+    Ok(result)
+}
+
+/// The seen and the unseen (and not excluded) trajectories of a labelled set.
+fn partition(set: LabelledSet, split: &Split) -> (LabelledSet, LabelledSet) {
+    let unseen = set
+        .clone()
+        .filtered(|t| split.group(&t.indenter) == "unseen");
+    (set.seen_only(split), unseen)
+}
+
+/// The images of two labelled sets of the same spec, as one set.
+fn images_of(a: &LabelledSet, b: &LabelledSet) -> data::UnlabelledSet {
+    let mut m = a.images();
+    m.trajectories.extend(b.images().trajectories);
+    m
+}
+
+/// Rows of I_s | Î_t | I_t: the middle frame of `rows` trajectories spread over `source` (and
+/// its translation, frame for frame), beside the same trajectory's middle frame on the target;
+/// enlarged (nearest pixel) to at least 480 pixels across.
+fn sample_grid(
+    source: &LabelledSet,
+    translated: &LabelledSet,
+    target: &data::UnlabelledSet,
+    rows: usize,
+) -> anyhow::Result<image::RgbImage> {
+    let spec = source.spec;
+    let (w, h) = (spec.width, spec.height);
+    let n = source.trajectories.len().min(translated.trajectories.len());
+    anyhow::ensure!(n > 0, "no trajectories to show");
+    let mut grid = image::RgbImage::new(w * 3, h * rows as u32);
+    for r in 0..rows {
+        let k = (r * n) / rows;
+        let (s, tr) = (&source.trajectories[k], &translated.trajectories[k]);
+        let tg = target
+            .trajectories
+            .iter()
+            .find(|t| t.id == s.id && t.indenter == s.indenter);
+        let mid = s.frames / 2;
+        let mut cols: Vec<&[u8]> =
+            vec![s.frame(mid, &spec), tr.frame(mid.min(tr.frames - 1), &spec)];
+        if let Some(t) = tg {
+            cols.push(t.frame((t.frames / 2).min(t.frames - 1), &spec));
+        }
+        for (c, px) in cols.into_iter().enumerate() {
+            let img = image::RgbImage::from_raw(w, h, px.to_vec()).context("frame size")?;
+            image::imageops::overlay(
+                &mut grid,
+                &img,
+                (c as u32 * w) as i64,
+                (r as u32 * h) as i64,
+            );
+        }
+    }
+    // Pixels a person can see: at least 480 wide, whole pixels enlarged.
+    let k = (480 / (3 * w)).max(1);
+    Ok(image::imageops::resize(
+        &grid,
+        grid.width() * k,
+        grid.height() * k,
+        image::imageops::FilterType::Nearest,
+    ))
+}
+
+fn pm(m: f64, sd: f64, seeds: usize) -> String {
+    if seeds > 1 {
+        format!("{m:.3} ± {sd:.3}")
+    } else {
+        format!("{m:.3}")
+    }
+}
+
+/// The report: force tables with the paper's numbers, translation, verdicts, phase times.
+pub fn markdown(r: &Reproduction) -> String {
+    let mut s = String::new();
+    s.push_str(&format!(
+        "# TransForce reproduced on the simulated rig (scale {:?})\n\n",
+        r.scale
+    ));
+    s.push_str(
+        "Force prediction on the target sensor, mean ± standard deviation over seeds. MAE in N \
+         and as % of the target labels' range; R² per axis; total-force MAE (|F| error), N.\n\n",
+    );
+    s.push_str("| group | method | modality | seeds | MAE Fx | MAE Fy | MAE Fz | % range Fx / Fy / Fz | R² Fx | R² Fy | R² Fz | total MAE |\n");
+    s.push_str("|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|\n");
+    for a in &r.aggregate {
+        let pct: Vec<String> = (0..3)
+            .map(|k| format!("{:.1}", 100.0 * a.mae[k] / r.range_n[k]))
+            .collect();
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            a.group,
+            a.method,
+            a.modality,
+            a.seeds,
+            pm(a.mae[0], a.mae_sd[0], a.seeds),
+            pm(a.mae[1], a.mae_sd[1], a.seeds),
+            pm(a.mae[2], a.mae_sd[2], a.seeds),
+            pct.join(" / "),
+            pm(a.r2[0], a.r2_sd[0], a.seeds),
+            pm(a.r2[1], a.r2_sd[1], a.seeds),
+            pm(a.r2[2], a.r2_sd[2], a.seeds),
+            pm(a.total_mae, a.total_mae_sd, a.seeds),
+        ));
+    }
+    s.push_str(&format!(
+        "| seen | **the paper** (real sensors) | M / M / R+M | | {} | {} | {} | {:.1} / {:.1} / {:.1} | {} | {} | {} | |\n\n",
+        PAPER_MAE_N[0],
+        PAPER_MAE_N[1],
+        PAPER_MAE_N[2],
+        100.0 * PAPER_MAE_N[0] / PAPER_RANGE_N[0],
+        100.0 * PAPER_MAE_N[1] / PAPER_RANGE_N[1],
+        100.0 * PAPER_MAE_N[2] / PAPER_RANGE_N[2],
+        PAPER_R2[0],
+        PAPER_R2[1],
+        PAPER_R2[2],
+    ));
+    s.push_str(&format!(
+        "Target labels' range: Fx {:.2}, Fy {:.2}, Fz {:.2} N (the paper's work range: 12, 12, 16 N).\n\n",
+        r.range_n[0], r.range_n[1], r.range_n[2]
+    ));
+    s.push_str("## Image translation\n\n| group | pair | images | FID | KID | the paper's FID |\n|---|---|---|---:|---:|---:|\n");
+    for f in &r.fid {
+        let paper = match (f.group.as_str(), f.pair.as_str()) {
+            ("seen", "I_s–I_t") => format!("{}", PAPER_FID_BEFORE[0]),
+            ("unseen", "I_s–I_t") => format!("{}", PAPER_FID_BEFORE[1]),
+            ("seen", "Î_t–I_t") => format!("{}", PAPER_FID_AFTER[0]),
+            ("unseen", "Î_t–I_t") => format!("{}", PAPER_FID_AFTER[1]),
+            _ => "-".into(),
+        };
+        s.push_str(&format!(
+            "| {} | {} | {} / {} | {} | {} | {paper} |\n",
+            f.group,
+            f.pair,
+            f.n[0],
+            f.n[1],
+            f.fid.map_or("-".into(), |v| format!("{v:.1}")),
+            f.kid.map_or("-".into(), |v| format!("{v:.4}")),
+        ));
+    }
+    for n in &r.fid_notes {
+        s.push_str(&format!("\n- {n}"));
+    }
+    s.push_str("\n\nSample grids (I_s | Î_t | I_t): `figures/samples-seen.png`, `figures/samples-unseen.png`; predicted against true force per model: `results/models/<model>/pred-vs-true-*.svg`.\n\n## Verdicts\n\n");
+    for v in &r.verdicts {
+        s.push_str(&format!(
+            "- **{}**: {}.\n  {}\n",
+            v.outcome, v.claim, v.evidence
+        ));
+    }
+    s.push_str("\n## Wall time per phase\n\n| phase | s |\n|---|---:|\n");
+    for p in ["collect", "translate", "fid", "train", "evaluate"] {
+        if let Some(t) = r.phases_s.get(p) {
+            s.push_str(&format!("| {p} | {t:.0} |\n"));
+        }
+    }
+    s.push_str(&format!(
+        "| total | {:.0} |\n",
+        r.phases_s.values().sum::<f64>()
+    ));
+    s
+}

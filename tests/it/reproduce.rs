@@ -1,0 +1,107 @@
+//! `rig reproduce` at its tiny scale: the whole protocol (collection on two sensors, the
+//! translator, FID for seen and unseen, 3 methods × 3 modalities, evaluation, verdicts, sample
+//! grids) runs and writes its report; run again into the same `--out`, it redoes nothing but
+//! the evaluation and gives the same numbers.
+
+use std::process::Command;
+
+use crate::common;
+
+fn reproduce(out: &std::path::Path) -> std::process::Output {
+    let _rig = common::one_rig_at_a_time();
+    Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["reproduce", "--scale", "tiny", "--out"])
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("repro");
+    let first = reproduce(&out);
+    assert!(first.status.success(), "{}", common::output_text(&first));
+
+    let report = std::fs::read_to_string(out.join("results/reproduce.md")).unwrap();
+    for section in [
+        "## Image translation",
+        "## Verdicts",
+        "## Wall time per phase",
+    ] {
+        assert!(report.contains(section), "no {section} in:\n{report}");
+    }
+    assert!(report.contains("**the paper** (real sensors)"), "{report}");
+
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("results/rows.json")).unwrap()).unwrap();
+    // 3 methods × 3 modalities, for the seen and the unseen group at least.
+    let agg = json["aggregate"].as_array().unwrap();
+    for group in ["seen", "unseen"] {
+        let rows: Vec<_> = agg.iter().filter(|a| a["group"] == group).collect();
+        assert_eq!(rows.len(), 9, "{group}: {rows:?}");
+        for r in rows {
+            assert_eq!(r["seeds"], 1);
+            for a in 0..3 {
+                let mae = r["mae"][a].as_f64().unwrap();
+                assert!(mae.is_finite() && mae >= 0.0, "{r}");
+            }
+        }
+    }
+    let range: Vec<f64> = json["range_n"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(range.iter().all(|r| *r > 0.05), "{range:?}");
+    // The translation is measured for the unseen indenters too.
+    let fid = json["fid"].as_array().unwrap();
+    for group in ["seen", "unseen"] {
+        for pair in ["I_s–I_t", "Î_t–I_t", "I_s–Î_t"] {
+            assert!(
+                fid.iter().any(|f| f["group"] == group && f["pair"] == pair),
+                "no {pair} for {group}: {fid:?}"
+            );
+        }
+    }
+    let verdicts = json["verdicts"].as_array().unwrap();
+    assert_eq!(verdicts.len(), 6, "{verdicts:?}");
+    for v in verdicts {
+        let o = v["outcome"].as_str().unwrap();
+        assert!(
+            ["reproduced", "refuted", "not measured"].contains(&o),
+            "{v}"
+        );
+    }
+    for name in ["seen", "unseen"] {
+        let img = image::open(out.join(format!("figures/samples-{name}.png")))
+            .unwrap()
+            .to_rgb8();
+        // I_s | Î_t | I_t, 4 rows, at the network's 32 × 24, enlarged 5 times.
+        assert_eq!(img.dimensions(), (480, 480), "{name}");
+    }
+
+    // Again into the same directory: nothing recorded, translated or trained anew.
+    let models = |o: &std::path::Path| -> Vec<std::time::SystemTime> {
+        let mut v: Vec<_> = std::fs::read_dir(o.join("models"))
+            .unwrap()
+            .map(|e| {
+                let p = e.unwrap().path().join("model.safetensors");
+                std::fs::metadata(p).unwrap().modified().unwrap()
+            })
+            .collect();
+        v.sort();
+        v
+    };
+    let before = models(&out);
+    assert_eq!(before.len(), 9);
+    let second = reproduce(&out);
+    assert!(second.status.success(), "{}", common::output_text(&second));
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    assert!(stderr.contains("translation: done earlier"), "{stderr}");
+    assert_eq!(models(&out), before, "a model was trained again");
+    let again: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("results/rows.json")).unwrap()).unwrap();
+    assert_eq!(again["aggregate"], json["aggregate"]);
+}
