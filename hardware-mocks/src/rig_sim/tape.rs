@@ -871,24 +871,29 @@ impl Episode {
         self.last_at = Some(at);
         if self.replaying {
             let rest_start = self.rest_start;
-            let before: Vec<String> = self
-                .cursors
-                .iter()
-                .map(|c| {
-                    let around: Vec<String> = (c.vertex.saturating_sub(2)
-                        ..(c.vertex + 5).min(c.n_vertices()))
-                        .map(|v| format!("{v}: {:?} L {:.5} t {:?}", c.at(v), c.length[v], c.t(v)))
-                        .collect();
-                    format!(
-                        "vertex {} offset {:?} path {:.5} rest {:?} [{}]",
-                        c.vertex,
-                        c.offset_ns,
-                        c.path_mm,
-                        c.rest,
-                        around.join("; ")
-                    )
-                })
-                .collect();
+            // Where the candidates stood, for the log of a replay that leaves them (built
+            // only when that log is on).
+            let before: Option<Vec<String>> = tracing::enabled!(tracing::Level::DEBUG).then(|| {
+                self.cursors
+                    .iter()
+                    .map(|c| {
+                        let around: Vec<String> = (c.vertex.saturating_sub(2)
+                            ..(c.vertex + 5).min(c.n_vertices()))
+                            .map(|v| {
+                                format!("{v}: {:?} L {:.5} t {:?}", c.at(v), c.length[v], c.t(v))
+                            })
+                            .collect();
+                        format!(
+                            "vertex {} offset {:?} path {:.5} rest {:?} [{}]",
+                            c.vertex,
+                            c.offset_ns,
+                            c.path_mm,
+                            c.rest,
+                            around.join("; ")
+                        )
+                    })
+                    .collect()
+            });
             self.cursors.retain_mut(|c| {
                 let found = if resting {
                     c.find_resting(&at, t_rel, rest_start)
