@@ -488,19 +488,7 @@ fn decode_field(buf: &[u8]) -> io::Result<SurfaceField> {
     {
         return Err(bad("damaged field"));
     }
-    let n = nx * ny;
-    let mut f = SurfaceField {
-        nx,
-        ny,
-        cell_mm,
-        origin_mm: [ox, oy],
-        uz_mm: vec![0.0; n],
-        ux_mm: vec![0.0; n],
-        uy_mm: vec![0.0; n],
-        pressure_mpa: vec![0.0; n],
-        traction_x_mpa: vec![0.0; n],
-        traction_y_mpa: vec![0.0; n],
-    };
+    let mut f = SurfaceField::unloaded(nx, ny, cell_mm, [ox, oy]);
     for j in j0..j0 + h {
         for i in i0..i0 + w {
             let k = j * nx + i;
@@ -553,6 +541,8 @@ fn blend(a: Option<&SurfaceField>, b: Option<&SurfaceField>, s: f64) -> Option<S
         return Some(if s < 0.5 { a.clone() } else { b.clone() });
     }
     let n = g.nx * g.ny;
+    // (Not `..SurfaceField::unloaded(..)`: that would allocate three grids to drop, on every
+    // replayed step.)
     Some(SurfaceField {
         nx: g.nx,
         ny: g.ny,

@@ -205,12 +205,18 @@ pub struct SurfaceField {
 impl SurfaceField {
     /// A flat, unloaded field on `grid`.
     fn flat(grid: &Grid) -> Self {
-        let n = grid.len();
+        Self::unloaded(grid.nx, grid.ny, grid.cell_mm, grid.origin_mm)
+    }
+
+    /// A flat, unloaded field of `nx × ny` cells of `cell_mm`, cell (0, 0) centred at
+    /// `origin_mm`.
+    pub fn unloaded(nx: usize, ny: usize, cell_mm: f64, origin_mm: [f64; 2]) -> Self {
+        let n = nx * ny;
         Self {
-            nx: grid.nx,
-            ny: grid.ny,
-            cell_mm: grid.cell_mm,
-            origin_mm: grid.origin_mm,
+            nx,
+            ny,
+            cell_mm,
+            origin_mm,
             uz_mm: vec![0.0; n],
             ux_mm: vec![0.0; n],
             uy_mm: vec![0.0; n],
