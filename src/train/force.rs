@@ -21,7 +21,10 @@ pub const MODEL_INFO: &str = "model.json";
 /// being misread. Fields added later with a default (such as
 /// [`ModelInfo::frames_per_trajectory`]) keep the format; a change that older readers would
 /// misread bumps it.
-pub const MODEL_FORMAT: &str = "rig-force-model-1";
+pub const MODEL_FORMAT: &str = "rig-force-model-2";
+/// Formats this version reads: its own, and format 1 (before the residual LSTM, which format 1
+/// models lack: [`ForceShape::residual`] defaults to `false`).
+const READS_FORMATS: [&str; 2] = [MODEL_FORMAT, "rig-force-model-1"];
 const WEIGHTS: &str = "model.safetensors";
 /// The same weights in burn's own format, which also keeps each parameter's id: the optimiser
 /// state is keyed by those ids, so resuming needs them.
@@ -46,6 +49,9 @@ pub struct ForceConfig {
     pub width: usize,
     pub embed: usize,
     pub lstm: bool,
+    /// The LSTM's output added to its input (see [`ForceShape::residual`]); `false` is the
+    /// paper's plain LSTM.
+    pub lstm_residual: bool,
     pub seq_len: usize,
     pub per_trajectory: usize,
     pub gamma: f64,
@@ -70,6 +76,7 @@ impl Default for ForceConfig {
             width: 16,
             embed: 64,
             lstm: true,
+            lstm_residual: true,
             seq_len: 8,
             per_trajectory: 4,
             gamma: 0.8,
@@ -187,6 +194,7 @@ pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
         width: cfg.width,
         embed: cfg.embed,
         lstm: cfg.lstm,
+        residual: cfg.lstm && cfg.lstm_residual,
         imagenet_stem,
         spatial: (cells <= 64).then_some(map),
     }
@@ -596,7 +604,7 @@ pub fn read_info(dir: &Path) -> anyhow::Result<ModelInfo> {
     let raw: serde_json::Value = serde_json::from_slice(&text)
         .with_context(|| format!("{} is not a model description (not JSON)", p.display()))?;
     match raw.get("format").and_then(|f| f.as_str()) {
-        Some(MODEL_FORMAT) => {}
+        Some(f) if READS_FORMATS.contains(&f) => {}
         Some(other) => bail!(
             "{} is a model of format {other:?}; this rig ({}) reads {MODEL_FORMAT:?}. Use the \
              rig version that trained it, or retrain the model with this one (`rig train force`)",

@@ -279,6 +279,13 @@ pub struct ForceShape {
     /// ImageNet stem (7×7 stride 2 + max pool) when the images are large enough; a 3×3 stride-1
     /// stem for small images, which would otherwise shrink to nothing.
     pub imagenet_stem: bool,
+    /// The LSTM's output is added to its input (a residual connection), so the MLP sees each
+    /// frame's own embedding from the first step and the LSTM learns what history adds to it.
+    /// Without it the plain LSTM (the paper's) starts from a small, gated signal and trained
+    /// about half as fast as its no-LSTM control (quick demo: loss 0.10 against 0.06 after
+    /// 60 epochs, where the residual one reached 0.06). `false` in models of format 1.
+    #[serde(default)]
+    pub residual: bool,
     /// The encoder's head: `None` is ResNet's global average pool; `Some([h, w])` flattens the
     /// last `h × w` feature map instead. Global pooling discards where things are, and on small
     /// images where the contact sits (how far the indenter has slid) is the visible cue for
@@ -436,6 +443,8 @@ pub struct ForceNet {
     lstm: Option<Lstm>,
     fc1: Linear,
     fc2: Linear,
+    /// [`ForceShape::residual`].
+    residual: bool,
 }
 
 impl ForceNet {
@@ -447,6 +456,7 @@ impl ForceNet {
                 .then(|| LstmConfig::new(shape.embed, shape.embed, true).init(dev)),
             fc1: LinearConfig::new(shape.embed, shape.embed).init(dev),
             fc2: LinearConfig::new(shape.embed, 3).init(dev),
+            residual: shape.lstm && shape.residual,
         }
     }
 
@@ -477,7 +487,11 @@ impl ForceNet {
     /// k depends on positions 0..=k only.
     pub fn head(&self, mut s: Tensor<3>) -> Tensor<3> {
         if let Some(lstm) = &self.lstm {
-            s = lstm.forward(s, None).0;
+            s = if self.residual {
+                lstm.forward(s.clone(), None).0 + s
+            } else {
+                lstm.forward(s, None).0
+            };
         }
         let y = self.fc2.forward(relu(self.fc1.forward(s)));
         sigmoid(y)
@@ -633,6 +647,7 @@ mod tests {
                     width: 4,
                     embed: 8,
                     lstm,
+                    residual: lstm,
                     imagenet_stem: false,
                     // Both heads: the flattened map and the global pool.
                     spatial: lstm.then(|| ForceShape::final_map(false, 24, 32)),

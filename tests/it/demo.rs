@@ -5,7 +5,8 @@
 //! TransForce must beat source-only on the target on every axis (MAE over all
 //! frames) and on the force magnitude. The demo slides 2 mm at depth, so the shear forces (a few
 //! newtons, with slip and reversal) are a signal the quick models can learn; source-only,
-//! trained on the source sensor's images, does not transfer them to the target's.
+//! trained on the source sensor's images, does not transfer them to the target's. The quick demo's
+//! models take the R modality (markers inpainted; see `DemoPlan::new` for why not R+M at 32 × 24).
 
 use std::process::Command;
 

@@ -365,18 +365,18 @@ fn bad_input_is_refused_with_a_message_that_says_what_to_do() {
     }
     let info = other.join("model.json");
     let text = std::fs::read_to_string(&info).unwrap();
-    assert!(text.contains("\"rig-force-model-1\""));
+    assert!(text.contains("\"rig-force-model-2\""));
     std::fs::write(
         &info,
-        text.replace("rig-force-model-1", "rig-force-model-2"),
+        text.replace("rig-force-model-2", "rig-force-model-3"),
     )
     .unwrap();
     let version = Predictor::load(&other, PredictorOptions::default())
         .err()
         .unwrap()
         .to_string();
-    assert!(version.contains("\"rig-force-model-2\""), "{version}");
-    assert!(version.contains("reads \"rig-force-model-1\""), "{version}");
+    assert!(version.contains("\"rig-force-model-3\""), "{version}");
+    assert!(version.contains("reads \"rig-force-model-2\""), "{version}");
     assert!(version.contains("retrain"), "{version}");
 
     // Frames of another aspect ratio, and frames smaller than the model's input.

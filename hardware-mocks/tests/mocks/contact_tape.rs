@@ -243,8 +243,8 @@ fn a_second_run_with_the_same_gel_replays_the_tape_and_gets_the_live_contact() {
     let mut worst = [0.0f64; 3];
     for (r, l) in replayed.iter().zip(&live) {
         assert_eq!(r.t_ns, l.t_ns);
-        for k in 0..3 {
-            worst[k] = worst[k].max((r.w.force_n[k] - l.w.force_n[k]).abs());
+        for (k, w) in worst.iter_mut().enumerate() {
+            *w = w.max((r.w.force_n[k] - l.w.force_n[k]).abs());
         }
         if std::env::var_os("TAPE_DEBUG").is_some() {
             eprintln!(
@@ -270,8 +270,8 @@ fn a_second_run_with_the_same_gel_replays_the_tape_and_gets_the_live_contact() {
             .iter()
             .find(|f| f.t_ns == l.t_ns)
             .expect("a common time");
-        for k in 0..3 {
-            own[k] = own[k].max((f.w.force_n[k] - l.w.force_n[k]).abs());
+        for (k, o) in own.iter_mut().enumerate() {
+            *o = o.max((f.w.force_n[k] - l.w.force_n[k]).abs());
         }
     }
     eprintln!("the live physics at 50 Hz against 100 Hz: worst {own:?} N");

@@ -672,6 +672,7 @@ mod tests {
             width: 4,
             embed: 8,
             lstm: true,
+            residual: true,
             imagenet_stem: false,
             spatial: Some(ForceShape::final_map(false, 24, 32)),
         };
@@ -685,6 +686,7 @@ mod tests {
             width: 2,
             embed: 5,
             lstm: false,
+            residual: false,
             imagenet_stem: true,
             spatial: Some([2, 3]),
         };

@@ -245,6 +245,10 @@ fn position(p: &IndenterPose) -> [f64; 3] {
     ]
 }
 
+/// A contact step's result: the simulator's wrench (about the contact point), and the surface
+/// field either as solved (owned) or as replayed from a tape (shared).
+pub(in crate::rig_sim) type StepOut = (Wrench, Option<SurfaceField>, Option<Arc<SurfaceField>>);
+
 /// What the physics does with one contact episode: replays it from tapes while it can, else
 /// solves live (see the module docs).
 pub(in crate::rig_sim) struct Episode {
@@ -288,7 +292,7 @@ impl Episode {
         scene: &Scene,
         t_ns: u64,
         want_field: bool,
-    ) -> Result<(Wrench, Option<SurfaceField>, Option<Arc<SurfaceField>>), SimError> {
+    ) -> Result<StepOut, SimError> {
         let at = position(&scene.pose);
         if self.log.is_empty() {
             self.cursors = self.cache.as_ref().map_or_else(Vec::new, |c| {
