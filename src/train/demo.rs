@@ -59,7 +59,7 @@ impl DemoPlan {
                 // patterns are a pixel or so apart and alias into noise that differs between the
                 // sensors, and the quick models did not learn shear from R+M: every model
                 // predicted about zero shear (R² Fx, Fy < 0 on the target), so which one won on
-                // Fx and Fy was chance (source-only won Fy in 2 of the last 5 runs). On the same data and
+                // Fx and Fy was chance (source-only won Fy in 2 of the last 6 runs). On the same data and
                 // translator, R: TransForce 0.22 / 0.17 / 0.55 N (Fx / Fy / Fz) against
                 // source-only 1.44 / 2.08 / 3.24; R+M: 0.15 / 0.16 / 0.31 against 0.29 / 0.20 /
                 // 1.51. The full demo and `rig reproduce` run all three modalities.
