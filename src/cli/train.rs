@@ -150,13 +150,8 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
             let t = cyclegan::translate(&source, &target, &cfg.translate, &a.out, progress)?;
             let (source_images, translated_images) = (source.images(), t.set.images());
             let mut table = report::Table {
-                fid: eval::fid_rows(
-                    &[
-                        ("I_s", &source_images),
-                        ("I_t", &target),
-                        ("Î_t", &translated_images),
-                    ],
-                    &[(0, 1), (2, 1), (0, 2)],
+                fid: eval::translation_fid(
+                    [&source_images, &target, &translated_images],
                     &cfg.data.split,
                     &cfg.fid,
                     net.as_ref().ok(),

@@ -491,6 +491,19 @@ fn g_device(dev: &Device) -> Device {
     dev.clone().inner()
 }
 
+/// Pastes the `w × h` RGB frame `px` into `grid` at column `col`, row `row` of frames.
+pub(super) fn paste_frame(
+    grid: &mut image::RgbImage,
+    px: &[u8],
+    (w, h): (u32, u32),
+    col: usize,
+    row: usize,
+) -> anyhow::Result<()> {
+    let img = image::RgbImage::from_raw(w, h, px.to_vec()).context("frame size")?;
+    image::imageops::replace(grid, &img, (col as u32 * w) as i64, (row as u32 * h) as i64);
+    Ok(())
+}
+
 /// Rows of I_s | Î_t | I_t (a random source frame, its translation, a random target frame).
 fn sample_grid(
     gan: &CycleGan,
@@ -509,13 +522,7 @@ fn sample_grid(
     let mut grid = image::RgbImage::new(w * 3, h * rows as u32);
     for r in 0..rows {
         for (col, px) in [s[r], fake[r].as_slice(), t[r]].into_iter().enumerate() {
-            let img = image::RgbImage::from_raw(w, h, px.to_vec()).context("frame size")?;
-            image::imageops::replace(
-                &mut grid,
-                &img,
-                (col as u32 * w) as i64,
-                (r as u32 * h) as i64,
-            );
+            paste_frame(&mut grid, px, (w, h), col, r)?;
         }
     }
     // Small network inputs are enlarged (nearest neighbour) so the grid can be looked at.

@@ -456,7 +456,7 @@ impl ForceNet {
                 .then(|| LstmConfig::new(shape.embed, shape.embed, true).init(dev)),
             fc1: LinearConfig::new(shape.embed, shape.embed).init(dev),
             fc2: LinearConfig::new(shape.embed, 3).init(dev),
-            residual: shape.lstm && shape.residual,
+            residual: shape.residual,
         }
     }
 

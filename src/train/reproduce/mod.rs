@@ -44,7 +44,7 @@ use super::demo::{collect, sized_camera, train_force};
 use super::eval::{self, FidConfig};
 use super::force::ForceConfig;
 use super::modality::Modality;
-use super::nn::{Depth, GanShape};
+use super::nn::Depth;
 use super::report::{FidRow, Row};
 
 mod findings;
@@ -112,25 +112,10 @@ impl Protocol {
             [-3.0, 2.0],
             [3.0, 2.0],
         ];
-        let small_gan = TranslateConfig {
-            shape: GanShape {
-                ngf: 8,
-                ndf: 8,
-                res_blocks: 2,
-                disc_layers: 2,
-            },
-            lr: 1e-3,
-            batch: 4,
-            ..TranslateConfig::default()
-        };
-        let small_force = ForceConfig {
-            depth: Depth::R18,
-            width: 8,
-            batch: 16,
-            lr: 2e-3,
-            lr_final: Some(2e-4),
-            ..ForceConfig::default()
-        };
+        // The quick demo's small networks and training settings; each scale sets its own
+        // length of training.
+        let quick = super::demo::DemoPlan::new(true);
+        let (small_gan, small_force) = (quick.translate, quick.force);
         match scale {
             Scale::Tiny => Self {
                 scale,
@@ -554,13 +539,7 @@ fn sample_grid(
             cols.push(t.frame((t.frames / 2).min(t.frames - 1), &spec));
         }
         for (c, px) in cols.into_iter().enumerate() {
-            let img = image::RgbImage::from_raw(w, h, px.to_vec()).context("frame size")?;
-            image::imageops::overlay(
-                &mut grid,
-                &img,
-                (c as u32 * w) as i64,
-                (r as u32 * h) as i64,
-            );
+            cyclegan::paste_frame(&mut grid, px, (w, h), c, r)?;
         }
     }
     // Pixels a person can see: at least 480 wide, whole pixels enlarged.

@@ -253,8 +253,10 @@ pub(in crate::rig_sim) type StepOut = (Wrench, Option<SurfaceField>, Option<Arc<
 /// solves live (see the module docs).
 pub(in crate::rig_sim) struct Episode {
     cache: Option<ContactCache>,
-    /// Every step of the episode so far: its time and pose (to rebuild the history on leaving
-    /// the tapes).
+    /// Clock time of the episode's first step (`None`: no episode under way).
+    t0: Option<u64>,
+    /// Every step of the episode so far while it is replayed: its time and pose (to rebuild the
+    /// history on leaving the tapes; a live episode keeps none).
     log: Vec<(u64, IndenterPose)>,
     /// The candidates still on the run's path; empty once live.
     cursors: Vec<Cursor>,
@@ -271,6 +273,7 @@ impl Episode {
     pub(in crate::rig_sim) fn new(cache: Option<ContactCache>) -> Self {
         Self {
             cache,
+            t0: None,
             log: Vec::new(),
             cursors: Vec::new(),
             recorder: None,
@@ -294,7 +297,7 @@ impl Episode {
         want_field: bool,
     ) -> Result<StepOut, SimError> {
         let at = position(&scene.pose);
-        if self.log.is_empty() {
+        if self.t0.is_none() {
             self.cursors = self.cache.as_ref().map_or_else(Vec::new, |c| {
                 c.touching_down_at(&at)
                     .into_iter()
@@ -308,9 +311,11 @@ impl Episode {
                 fields: Vec::new(),
             });
         }
-        let t0 = self.log.first().map_or(t_ns, |(t, _)| *t);
+        let t0 = *self.t0.get_or_insert(t_ns);
         let t_rel = t_ns - t0;
-        self.log.push((t_ns, scene.pose));
+        if self.replaying {
+            self.log.push((t_ns, scene.pose));
+        }
         let moved = self.last_at.map_or(at[2], |q| dist(&q, &at));
         let resting = self.last_at.is_some() && moved <= REST_MM;
         if !resting {
@@ -406,7 +411,7 @@ impl Episode {
 
     /// The episode ended (the indenter left the gel): a live one becomes a tape.
     pub(in crate::rig_sim) fn end(&mut self) {
-        if self.log.is_empty() {
+        if self.t0.take().is_none() {
             return;
         }
         if let Some(cache) = &self.cache {
