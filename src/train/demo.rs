@@ -55,15 +55,17 @@ impl DemoPlan {
                 camera: (160, 120),
                 fps: 10.0,
                 spec: (32, 24),
-                // R (markers inpainted). At this 32 × 24 input the sensors' 0.9 and 1.1 mm marker
-                // patterns are a pixel or so apart and alias into noise that differs between the
-                // sensors, and the quick models did not learn shear from R+M: every model
-                // predicted about zero shear (R² Fx, Fy < 0 on the target), so which one won on
-                // Fx and Fy was chance (source-only won Fy in 2 of the last 6 runs). On the same data and
-                // translator, R: TransForce 0.22 / 0.17 / 0.55 N (Fx / Fy / Fz) against
-                // source-only 1.44 / 2.08 / 3.24; R+M: 0.15 / 0.16 / 0.31 against 0.29 / 0.20 /
-                // 1.51. The full demo and `rig reproduce` run all three modalities.
-                modalities: vec![Modality::Rgb],
+                // R+M, the image as captured (the paper's main modality). Neither modality
+                // makes the quick models transfer shear to the target: source-only learns shear
+                // on its own sensor from the markers (R² Fx, Fy 0.997 on the source's R+M, 0.53
+                // and 0.65 on R, where only the contact's position and its history tell it), but
+                // this small CycleGAN cannot redraw the source's 0.9 mm grid as the target's
+                // jittered 1.1 mm hexagons moving with the gel, and every quick model's shear on
+                // the target stays near zero (R² Fx, Fy ≤ 0.1), so which one wins on Fx and Fy
+                // is chance. Normal force does transfer, better from R+M: on one recorded set,
+                // TransForce Fz 0.31 N against source-only 1.51 (R: 0.55 against 3.24; in CI's
+                // run on R, 0.49 against 0.75). The full demo and `rig reproduce` run all three.
+                modalities: vec![Modality::RgbMarker],
                 translate: TranslateConfig {
                     shape: GanShape {
                         ngf: 8,
