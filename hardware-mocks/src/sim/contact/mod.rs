@@ -528,8 +528,9 @@ impl ContactEngine {
         let mut w: Option<Vec<f64>> = None;
         // With friction history, the gel's surface is where the last step left it: stuck
         // material has moved with the indenter, so the contact is found at the displaced
-        // material points (stick is tracked in the gel's material coordinates; the shift lags
-        // one step, micrometres apart at the run's rates).
+        // material points (stick is tracked in the gel's material coordinates). This first
+        // search lags one step; after the tangential stage the contact is found again on the
+        // surface the step leaves (see "the contact at the end of the step" below).
         // Only for the continuum (BEM) models: Winkler's independent shear springs are 51×
         // softer than its normal ones at ν = 0.49, so their stick displacements are not a
         // surface that moves (they reach tens of mm).
