@@ -119,6 +119,7 @@ const PHYSICS_SOURCE: u64 = {
     h = fnv1a(h, include_bytes!("../../sim/mod.rs"));
     h = fnv1a(h, include_bytes!("../../sim/scene.rs"));
     h = fnv1a(h, include_bytes!("../../sim/contact/mod.rs"));
+    h = fnv1a(h, include_bytes!("../../sim/contact/geometry.rs"));
     h = fnv1a(h, include_bytes!("../../sim/contact/normal.rs"));
     h = fnv1a(h, include_bytes!("../../sim/contact/tangential.rs"));
     h = fnv1a(h, include_bytes!("../../sim/contact/kernels.rs"));
