@@ -36,13 +36,15 @@
 //!
 //! # The grid: sub-sampled overlap
 //!
-//! Each cell's overlap is taken from sub-samples [`OVERLAP_SAMPLE_MM`] apart (4 × 4 in a
-//! 0.4 mm cell): the mean penetration where some sub-sample penetrates, else the nearest
-//! approach. A ridge or bar narrower than a cell still touches, and a slide moves the overlap
-//! continuously from cell to cell (centre sampling on 0.4 mm cells gave the prism zero force
-//! at 0.2 mm whenever its ridge fell between cell centres, and made the line's Fz jump as it
-//! slid). The sensor physics ([`Effects::sensor`](super::Effects::sensor), what `rig run`,
-//! `rig sim render|forces` and the demo use) runs the layer model on 0.4 mm cells
+//! Each cell's overlap is taken from sub-samples about [`OVERLAP_SAMPLE_MM`] apart (16 in a 0.4
+//! mm cell, on a lattice with one sample per row and column of the cell, shifted from cell to
+//! cell, so a straight edge passes them one at a time): the mean penetration where some
+//! sub-sample penetrates, else the nearest approach. A ridge or bar narrower than a cell still
+//! touches, and a slide moves the overlap continuously from cell to cell (centre sampling on
+//! 0.4 mm cells gave the prism zero force at 0.2 mm whenever its ridge fell between cell
+//! centres, and made the line's Fz jump as it slid). The sensor physics
+//! ([`Effects::sensor`](super::Effects::sensor), what `rig run`, `rig sim render|forces` and
+//! the demo use) runs the layer model on 0.4 mm cells
 //! ([`SENSOR_CELL_MM`](super::scene::SENSOR_CELL_MM)). Its |Fz| against the 0.1 mm grid, from
 //! static presses at the gel centre:
 //!
@@ -54,10 +56,11 @@
 //! | line (bar) | 0.43 / 0.52 N (−18 %) | 1.70 / 2.07 N (−18 %) |
 //! | prism (90° ridge) | 0.11–0.15 / 0.19 N | 1.27 / 1.29 N (−1 %) |
 //!
-//! (E = 0.2 MPa.) Features narrower than a cell (the line's bars, the prism's ridge at shallow
-//! depth) are underestimated, and a ridge sliding across a cell swings its force by about
-//! ±17 % (continuously); everything else is within a few percent. A 0.2 mm grid would cost
-//! about 4× per step.
+//! (E = 0.2 MPa; measured with the 4 × 4 sub-sample grid the lattice replaced, which moved `rig
+//! sim forces`' calibration by under 0.1 %.) Features narrower than a cell (the line's bars,
+//! the prism's ridge at shallow depth) are underestimated, and a ridge sliding across a cell
+//! swings its force by about ±17 % (continuously); everything else is within a few percent. A
+//! 0.2 mm grid would cost about 4× per step.
 //!
 //! # Tangential models ([`FrictionModel`])
 //!
@@ -562,7 +565,12 @@ impl ContactEngine {
         // step (the cone's full plan: 158 → 169 s). It is not a full coupling: the tangential
         // solve still used the lagged contact's friction limits, and a slide split into other
         // step lengths still changes Fz (paralines across its ridges, 40 µm steps against
-        // 38 + 2 µm: up to 0.85 N, 0.40 N without this pass).
+        // 38 + 2 µm: up to 0.52 N, 0.14 N without this pass, on the sub-sample lattice). What
+        // the pass buys is a contact that holds still: without it each step re-runs the search ↔
+        // friction loop once more, which does not settle where the contact has edges, so 20
+        // steps at rest after a 2 mm slide spread Fz over 1.45 N (paralines; hexagon 0.30 N),
+        // against 0.16 N (0.07 N) with it. Iterating the pass further does not converge either
+        // (paralines' |Fz| max 9.84, 8.83 and 10.0 N after 2, 3 and 8 passes).
         // (A tangential solution exists only in contact, so the depth is positive here.)
         if continuum
             && friction == FrictionModel::Incremental
