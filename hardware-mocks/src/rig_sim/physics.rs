@@ -1,6 +1,26 @@
 //! The contact physics of the simulated rig: [`ContactPhysics`] steps the simulator from the
 //! UR5e's TCP and serves the wrench to the F/T twins; [`PhysicsRenderer`] shades its surface
 //! field for the camera. See the parent module for the geometry, sign convention and cost.
+//!
+//! # Known limits of the F/T labels
+//!
+//! A frame's true wrench and the F/T's samples come from the same steps, but not always the
+//! same ones, so `rig dataset check` sees the difference. On the cone's default plan it is
+//! within the Nano17's noise (0.03 N); on the large flat indenters' full plans it reaches
+//! 0.13–0.42 N (hexagon 0.29, paralines 0.42, triangle 0.36, cylinder 0.32, torus 0.13 N).
+//! Two causes are known:
+//!
+//! - **The UR5e twin's pose is held between its 2 ms control ticks**
+//!   ([`Ur5e::tip_pose_at`](crate::ur5e::Ur5e::tip_pose_at) gives the last tick's), so a
+//!   frame's step is the contact of up to 2 ms before its capture while F/T samples partly
+//!   read later steps: at `--speed-factor 1` the paired force leads the truth by about 0.8 ms,
+//!   0.1 N while a flat face lifts off. Interpolating the pose between ticks removes the lead,
+//!   but then every frame adds a step at its own instant, which more than doubled the cone's
+//!   run time (the read-ahead's line through two close steps asks for a solve per sample).
+//! - **A contact step depends on its length** (see `sim/contact`: the contact search lags the
+//!   friction solve, and iterating the two does not converge), and frames, physics ticks and
+//!   the F/T's off-line solves interleave at irregular times: Fz jitters by tenths of a newton
+//!   at the ends of slides.
 
 use std::collections::VecDeque;
 use std::io;
