@@ -79,6 +79,7 @@
 //! newest step is the newest one (held).
 
 mod physics;
+mod read_ahead;
 mod tape;
 
 use std::io;

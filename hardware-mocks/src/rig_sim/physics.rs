@@ -1,6 +1,8 @@
 //! The contact physics of the simulated rig: [`ContactPhysics`] steps the simulator from the
 //! UR5e's TCP and serves the wrench to the F/T twins; [`PhysicsRenderer`] shades its surface
 //! field for the camera. See the parent module for the geometry, sign convention and cost.
+//! How the F/T reads a wrench past the newest step, from the buffer of steps, is in
+//! `read_ahead.rs`.
 //!
 //! # Known limits of the F/T labels
 //!
@@ -43,6 +45,7 @@ use crate::sim::{
 };
 use crate::truth::WrenchSource;
 
+use super::read_ahead::{Ahead, Sample, along, position, read_off_line};
 use super::tape::{ContactCache, Episode, TapeStats};
 
 /// Default physics rate, Hz of clock time: two contact states per frame of a 25 fps camera.
@@ -198,34 +201,6 @@ struct Results {
     /// The newest surface fields with their pose times, oldest first.
     fields: VecDeque<(u64, Arc<SurfaceField>)>,
 }
-
-/// One physics step in the buffer: the pose time, the wrench, and where the indenter was (its
-/// axis in the surface frame and its depth, mm; the depth is negative out of contact).
-#[derive(Debug, Clone, Copy)]
-struct Sample {
-    t_ns: u64,
-    w: Wrench,
-    at_mm: [f64; 3],
-}
-
-/// The indenter's position in the surface frame as a [`Sample`] stores it.
-fn position(p: &IndenterPose) -> [f64; 3] {
-    [
-        p.contact_mm[0] + p.shear_mm[0],
-        p.contact_mm[1] + p.shear_mm[1],
-        p.depth_mm,
-    ]
-}
-
-/// Motion below this (mm) is rest: the simulated UR5e holds its pose exactly when stopped.
-const REST_MM: f64 = 1e-6;
-/// A pose further than this (mm) off the line through the last two steps' poses has changed
-/// direction (a stage start); a straight `movel` stays on it to rounding.
-const OFF_LINE_MM: f64 = 1e-4;
-/// How far past the newest step, in units of the last two steps' spacing, a pose may be read
-/// off their line: the error of that linear reading grows with the distance, and the solver's
-/// own noise in the difference of the two steps is multiplied by it.
-const MAX_LINE_STEPS: f64 = 2.0;
 
 /// Surface fields kept for [`ContactPhysics::field_at`] (the camera renders a frame a little
 /// after its capture time): at most one per [`FIELD_SPACING_NS`], so 256 of them cover 0.5 s
@@ -603,23 +578,13 @@ impl ContactPhysics {
     }
 }
 
-/// What [`ContactPhysics::read_ahead`] can say about a time past the newest step.
-enum Ahead {
-    /// The wrench, read off the motion's line (or zero out of contact).
-    Wrench(Wrench),
-    /// The buffer answers: the time is covered, or the indenter rests and only relaxation
-    /// changes the wrench (extrapolated in time).
-    Buffer,
-    /// The motion left the line of the last two steps: solve at the sample's pose.
-    Solve,
-}
-
 impl ContactPhysics {
     /// The wrench of the layer model at an F/T sample time `t_ns` past the newest step, without
     /// a solve per sample: the pose the robot had then is read off the line through the last
     /// two steps' poses, and the wrench interpolated (or extrapolated, up to
-    /// [`MAX_LINE_STEPS`]) along that line. This follows the motion's speed exactly, ramps
-    /// included, where an extrapolation in time would not. Where the pose is off that line (a
+    /// [`MAX_LINE_STEPS`](super::read_ahead::MAX_LINE_STEPS)) along that line
+    /// ([`read_off_line`]). This follows the motion's speed exactly, ramps included, where an
+    /// extrapolation in time would not. Where the pose is off that line (a
     /// stage starting, a reversal, the first touch), the physics steps at the sample's pose
     /// (off the clock's grid, counted in [`PhysicsStats::off_grid_steps`]): several solves per
     /// stage start, as the line's baseline grows. `None`: the buffer answers (see [`Ahead::Buffer`]).
@@ -683,79 +648,6 @@ impl ContactPhysics {
         let s = (t_ns - a.t_ns) as f64 / (b.t_ns - a.t_ns) as f64;
         along(&a.w, &b.w, s)
     }
-}
-
-/// `a + s·(b − a)`: between `a` and `b` for `s ∈ [0, 1]`; past `b` (`s > 1`) an extrapolation
-/// that never goes past the unloaded gel (pressing gives Fz < 0: extrapolating an unloading
-/// past zero is lift-off, and an unloaded `b` stays unloaded).
-fn along(a: &Wrench, b: &Wrench, s: f64) -> Wrench {
-    let (a, b) = (a.to_array(), b.to_array());
-    let out: [f64; 6] = std::array::from_fn(|k| a[k] + s * (b[k] - a[k]));
-    if s > 1.0 && (b[2] < 0.0 && out[2] >= 0.0 || b[2] == 0.0) {
-        return if b[2] == 0.0 {
-            Wrench::from_array(b)
-        } else {
-            Wrench::default()
-        };
-    }
-    Wrench::from_array(out)
-}
-
-/// The decision of [`ContactPhysics::read_ahead`] for an F/T sample at `t_ns` with the
-/// indenter at `at` (see [`Sample::at_mm`]), from the buffer `ring`.
-fn read_off_line(ring: &VecDeque<Sample>, t_ns: u64, at: &[f64; 3]) -> Ahead {
-    let Some(s1) = ring.back() else {
-        return if at[2] > 0.0 {
-            Ahead::Solve
-        } else {
-            Ahead::Wrench(Wrench::default())
-        };
-    };
-    if s1.t_ns >= t_ns {
-        return Ahead::Buffer;
-    }
-    if at[2] <= 0.0 {
-        // Out of contact: no force, exactly.
-        return Ahead::Wrench(Wrench::default());
-    }
-    if s1.at_mm[2] <= 0.0 {
-        // The first touch since the newest step.
-        return Ahead::Solve;
-    }
-    let sub = |p: &[f64; 3], q: &[f64; 3]| -> [f64; 3] { std::array::from_fn(|k| p[k] - q[k]) };
-    let dot = |p: &[f64; 3], q: &[f64; 3]| -> f64 { (0..3).map(|k| p[k] * q[k]).sum() };
-    let v = sub(at, &s1.at_mm);
-    let s0 = ring.len().checked_sub(2).map(|i| &ring[i]);
-    let d = s0.map(|s0| sub(&s1.at_mm, &s0.at_mm));
-    let resting = |x: &[f64; 3]| dot(x, x).sqrt() <= REST_MM;
-    if resting(&v) {
-        return match d {
-            // At rest since the step before: only relaxation moves the wrench.
-            Some(d) if resting(&d) => Ahead::Buffer,
-            // Between two controller ticks of a motion: the newest step is this pose's.
-            _ => Ahead::Wrench(s1.w),
-        };
-    }
-    let (Some(s0), Some(d)) = (s0, d) else {
-        return Ahead::Solve;
-    };
-    if resting(&d) {
-        // Starting to move.
-        return Ahead::Solve;
-    }
-    if s0.at_mm[2] <= 0.0 {
-        // The line from the last step out of contact bends where the indenter touched: a flat
-        // face's force rises at its full stiffness from there, and reading it off the chord
-        // from the free gel gave about a tenth of it (0.04 against 0.44 N, a physics period
-        // after a cylinder's touch).
-        return Ahead::Solve;
-    }
-    let s = dot(&v, &d) / dot(&d, &d);
-    let off: [f64; 3] = std::array::from_fn(|k| v[k] - s * d[k]);
-    if !(0.0..=MAX_LINE_STEPS).contains(&s) || dot(&off, &off).sqrt() > OFF_LINE_MM {
-        return Ahead::Solve;
-    }
-    Ahead::Wrench(along(&s0.w, &s1.w, 1.0 + s))
 }
 
 impl WrenchSource for ContactPhysics {
@@ -839,126 +731,4 @@ fn off_the_async_workers<R>(f: impl FnOnce() -> R) -> R {
 
 pub(super) fn invalid(msg: String) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, msg)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn sample(t_ms: u64, fz: f64, at_mm: [f64; 3]) -> Sample {
-        Sample {
-            t_ns: t_ms * 1_000_000,
-            w: Wrench {
-                force_n: [0.1 * fz, 0.0, fz],
-                torque_nmm: [0.0; 3],
-            },
-            at_mm,
-        }
-    }
-
-    fn fz(a: Ahead) -> Option<f64> {
-        match a {
-            Ahead::Wrench(w) => Some(w.force_n[2]),
-            _ => None,
-        }
-    }
-
-    /// Pressing down at 40 µm per 20 ms step: −1.0 N then −1.2 N.
-    fn pressing() -> VecDeque<Sample> {
-        VecDeque::from(vec![
-            sample(0, -1.0, [1.0, 2.0, 0.40]),
-            sample(20, -1.2, [1.0, 2.0, 0.44]),
-        ])
-    }
-
-    #[test]
-    fn a_pose_on_the_line_is_read_off_it_at_its_own_distance() {
-        let ring = pressing();
-        // 10 µm further down (a slower ramp than the steps' 2 mm/s): a quarter of a step on.
-        let f = fz(read_off_line(&ring, 30_000_000, &[1.0, 2.0, 0.45])).unwrap();
-        assert!((f + 1.25).abs() < 1e-12, "{f}");
-        // The same pose as the newest step, later (between controller ticks): its wrench.
-        let f = fz(read_off_line(&ring, 21_000_000, &[1.0, 2.0, 0.44])).unwrap();
-        assert_eq!(f, -1.2);
-    }
-
-    #[test]
-    fn leaving_the_line_reversing_or_running_far_past_it_asks_for_a_solve() {
-        let ring = pressing();
-        let t = 25_000_000;
-        // A shear starting: off the line by 1 µm.
-        assert!(matches!(
-            read_off_line(&ring, t, &[1.001, 2.0, 0.44]),
-            Ahead::Solve
-        ));
-        // Going back up the line (a reversal).
-        assert!(matches!(
-            read_off_line(&ring, t, &[1.0, 2.0, 0.439]),
-            Ahead::Solve
-        ));
-        // More than two step spacings past the newest step.
-        assert!(matches!(
-            read_off_line(&ring, t, &[1.0, 2.0, 0.53]),
-            Ahead::Solve
-        ));
-        // The first touch since the newest step, which was out of contact.
-        let air = VecDeque::from(vec![
-            sample(0, 0.0, [1.0, 2.0, -0.04]),
-            sample(20, 0.0, [1.0, 2.0, -0.001]),
-        ]);
-        assert!(matches!(
-            read_off_line(&air, t, &[1.0, 2.0, 0.02]),
-            Ahead::Solve
-        ));
-        // Just past the touch: the newest step is in contact, the one before it was not, so
-        // their line bends where the gel was touched and is not read off.
-        let touched = VecDeque::from(vec![
-            sample(0, 0.0, [1.0, 2.0, -0.019]),
-            sample(20, -0.01, [1.0, 2.0, 0.001]),
-        ]);
-        assert!(matches!(
-            read_off_line(&touched, 21_000_000, &[1.0, 2.0, 0.002]),
-            Ahead::Solve
-        ));
-        // Starting to move after a rest.
-        let rest = VecDeque::from(vec![
-            sample(0, -1.0, [1.0, 2.0, 0.44]),
-            sample(20, -0.98, [1.0, 2.0, 0.44]),
-        ]);
-        assert!(matches!(
-            read_off_line(&rest, t, &[1.0, 2.0, 0.4399]),
-            Ahead::Solve
-        ));
-        // Still resting: relaxation, from the buffer in time.
-        assert!(matches!(
-            read_off_line(&rest, t, &[1.0, 2.0, 0.44]),
-            Ahead::Buffer
-        ));
-    }
-
-    #[test]
-    fn out_of_contact_is_zero_and_a_covered_time_is_the_buffers() {
-        let ring = pressing();
-        assert_eq!(
-            fz(read_off_line(&ring, 25_000_000, &[1.0, 2.0, -0.01])),
-            Some(0.0)
-        );
-        assert!(matches!(
-            read_off_line(&ring, 20_000_000, &[1.0, 2.0, 0.44]),
-            Ahead::Buffer
-        ));
-    }
-
-    #[test]
-    fn an_unloading_read_off_the_line_stops_at_zero() {
-        // Lifting: −0.2 N then −0.05 N 40 µm higher; 60 µm higher still is past lift-off.
-        let ring = VecDeque::from(vec![
-            sample(0, -0.2, [0.0, 0.0, 0.10]),
-            sample(20, -0.05, [0.0, 0.0, 0.06]),
-        ]);
-        assert_eq!(
-            fz(read_off_line(&ring, 30_000_000, &[0.0, 0.0, 0.03])),
-            Some(0.0)
-        );
-    }
 }

@@ -116,6 +116,7 @@ const PHYSICS_SOURCE: u64 = {
     h = fnv1a(h, include_bytes!("file.rs"));
     h = fnv1a(h, include_bytes!("replay.rs"));
     h = fnv1a(h, include_bytes!("../physics.rs"));
+    h = fnv1a(h, include_bytes!("../read_ahead.rs"));
     h = fnv1a(h, include_bytes!("../../sim/mod.rs"));
     h = fnv1a(h, include_bytes!("../../sim/scene.rs"));
     h = fnv1a(h, include_bytes!("../../sim/contact/mod.rs"));
