@@ -9,7 +9,8 @@
 //! A frame's true wrench and the F/T's samples come from the same steps, but not always the
 //! same ones, so `rig dataset check` sees the difference. On the cone's default plan it is
 //! within the Nano17's noise (0.03 N); on the large flat indenters' full plans it reaches
-//! 0.13–0.42 N (hexagon 0.29, paralines 0.42, triangle 0.36, cylinder 0.32, torus 0.13 N).
+//! 0.13–0.54 N (wave 0.54, paralines 0.42, triangle 0.36, dotin 0.34, cylinder 0.32, pacman
+//! 0.29, hexagon 0.29, moon 0.26, cylinder_si 0.20, torus 0.13 N).
 //! Two causes are known:
 //!
 //! - **The UR5e twin's pose is held between its 2 ms control ticks**
