@@ -13,7 +13,10 @@ fn e_star(g: &ElastomerConfig) -> f64 {
     g.youngs_modulus_mpa / (1.0 - g.poisson_ratio.powi(2))
 }
 
-fn force(
+/// The normal force (N, pushing into the gel) of `indenter` at `depth` mm on `gel`, with one
+/// contact model and cell size; the solver must converge to a finite wrench. Also used by
+/// `contact_physics`.
+pub(crate) fn force(
     indenter: &Indenter,
     gel: &ElastomerConfig,
     model: ContactModel,

@@ -10,6 +10,8 @@ use hardware_mocks::sim::{
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::Indenter;
 
+use crate::contact_convergence::force;
+
 fn indenter(name: &str) -> Arc<Indenter> {
     Arc::new(Indenter::builtin(name).unwrap())
 }
@@ -50,18 +52,9 @@ fn the_layer_model_matches_the_bonded_layer_sphere_solution_within_3_percent() {
 
     let gel = ElastomerConfig::default();
     let (r, h) = (4.0, gel.thickness_mm);
+    let sphere = Indenter::builtin("sphere").unwrap();
     for depth in [0.15, 0.3] {
-        let mut s = Scene::new(
-            gel.clone(),
-            indenter("sphere"),
-            IndenterPose {
-                depth_mm: depth,
-                ..IndenterPose::default()
-            },
-        );
-        s.effects.contact = ContactModel::Layer;
-        s.effects.cell_mm = Some(0.1);
-        let got = -simulate(&s).unwrap().wrench.force_n[2];
+        let got = force(&sphere, &gel, ContactModel::Layer, 0.1, depth);
         let want = dimitriadis_bonded_n(gel.youngs_modulus_mpa, gel.poisson_ratio, r, depth, h);
         let hertz = 4.0 / 3.0 * gel.youngs_modulus_mpa / (1.0 - gel.poisson_ratio.powi(2))
             * r.sqrt()
@@ -117,19 +110,7 @@ fn the_layer_model_matches_the_bonded_layer_flat_punch_solution_within_3_percent
             // grid (measured: −1.8 % and −0.8 % for the smallest punch), so what remains is
             // the grid's error, not the layer model's.
             let errors = [0.05, 0.025].map(|cell| {
-                let mut s = Scene::new(
-                    gel.clone(),
-                    Arc::new(punch.clone()),
-                    IndenterPose {
-                        depth_mm: depth,
-                        ..IndenterPose::default()
-                    },
-                );
-                s.effects.contact = ContactModel::Layer;
-                s.effects.cell_mm = Some(cell);
-                let out = simulate(&s).unwrap();
-                assert!(out.stats.converged);
-                let got = -out.wrench.force_n[2];
+                let got = force(&punch, &gel, ContactModel::Layer, cell, depth);
                 let err = (got - want) / want;
                 println!(
                     "ν = {nu}, a/h = {a_over_h} (a = {a:.1} mm), cell {cell} mm: layer {got:.5} N, \
