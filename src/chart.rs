@@ -7,6 +7,9 @@ use std::path::Path;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+mod png;
+pub use png::{PngArea, PngBackend, font, png};
+
 /// A drawing area of an SVG file.
 pub type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
 

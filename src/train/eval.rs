@@ -19,6 +19,9 @@ use super::report::{FidRow, Row};
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Predictions {
     pub indenter: Vec<String>,
+    /// The frame's trajectory (an index into the evaluated set) and its index in it.
+    pub traj: Vec<usize>,
+    pub frame: Vec<usize>,
     pub pred: Vec<[f64; 3]>,
     pub truth: Vec<[f64; 3]>,
 }
@@ -65,6 +68,8 @@ pub fn predict(model: &ForceModel, set: &EvalSet) -> Predictions {
         let truth = set.forces(seq.traj);
         for (k, &i) in seq.frames.iter().enumerate().skip(*skip) {
             p.indenter.push(set.trajectories[seq.traj].indenter.clone());
+            p.traj.push(seq.traj);
+            p.frame.push(i);
             p.pred.push(pred[k].map(|v| v as f64));
             p.truth.push(truth[i].map(|v| v as f64));
         }
@@ -110,7 +115,19 @@ pub fn evaluate(
 ) -> anyhow::Result<Vec<Row>> {
     let model = ForceModel::load(model_dir)?;
     let set = super::data::load_eval(data, &model.spec(), progress)?;
-    let p = predict(&model, &set);
+    evaluate_on(&model, &set, data, out, split).map(|(rows, _)| rows)
+}
+
+/// [`evaluate`] on a loaded set (`data` names it in messages and plot titles): the rows, and
+/// the predictions they were scored on.
+pub fn evaluate_on(
+    model: &ForceModel,
+    set: &EvalSet,
+    data: &Path,
+    out: &Path,
+    split: &Split,
+) -> anyhow::Result<(Vec<Row>, Predictions)> {
+    let p = predict(model, set);
     if p.pred.is_empty() {
         anyhow::bail!(
             "{} has no trajectory of {} frames to evaluate",
@@ -136,7 +153,7 @@ pub fn evaluate(
         &p.pred,
         &p.truth,
     )?;
-    Ok(rows)
+    Ok((rows, p))
 }
 
 pub fn slug(s: &str) -> String {

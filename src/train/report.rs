@@ -161,8 +161,13 @@ impl Table {
     }
 }
 
+/// The most points a predicted-against-true panel draws.
+pub const MAX_SCATTER: usize = 4000;
+
 /// Predicted against true force, one panel per axis, with the y = x line; non-finite points are
-/// skipped, and empty or constant data still give a plot.
+/// skipped, and empty or constant data still give a plot. The captions' MAE and R² are of every
+/// point; at most [`MAX_SCATTER`] of them are drawn, evenly spaced in the list (a full
+/// evaluation has tens of thousands of frames, and an SVG of them all is tens of megabytes).
 pub fn plot_pred_vs_true(
     path: &Path,
     title: &str,
@@ -192,6 +197,7 @@ pub fn plot_pred_vs_true(
             }
             let pad = 0.05 * (hi - lo);
             let (xs, ys): (Vec<f64>, Vec<f64>) = pts.iter().copied().unzip();
+            let stride = pts.len().div_ceil(MAX_SCATTER).max(1);
             let caption = format!(
                 "{}: MAE {} N, R² {}",
                 metrics::AXES[a],
@@ -212,6 +218,7 @@ pub fn plot_pred_vs_true(
             chart.draw_series(LineSeries::new([(lo, lo), (hi, hi)], BLACK.mix(0.5)))?;
             chart.draw_series(
                 pts.iter()
+                    .step_by(stride)
                     .map(|p| Circle::new(*p, 2, BLUE.mix(0.4).filled())),
             )?;
         }
@@ -311,6 +318,30 @@ mod tests {
                 .unwrap();
         assert_eq!(back["rows"][1]["method"], "a, \"b\"");
         assert_eq!(back["rows"].as_array().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn a_large_evaluation_draws_at_most_max_scatter_points_a_panel() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.svg");
+        let truth: Vec<[f64; 3]> = (0..20_001)
+            .map(|i| [i as f64, -(i as f64), 0.5 * i as f64])
+            .collect();
+        let pred: Vec<[f64; 3]> = truth.iter().map(|t| t.map(|v| v + 1.0)).collect();
+        plot_pred_vs_true(&path, "big", &pred, &truth).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        let circles = svg.matches("<circle").count();
+        assert!(
+            (3 * 3000..=3 * MAX_SCATTER).contains(&circles),
+            "{circles} points drawn for 3 × 20001"
+        );
+        // The captions are of every point: MAE exactly 1 N on each axis.
+        assert_eq!(
+            svg.matches("MAE 1.000 N").count(),
+            3,
+            "{}",
+            &svg[..svg.len().min(2000)]
+        );
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! `rig reproduce` at its tiny scale: the whole protocol (collection on two sensors, the
 //! translator, FID for seen and unseen, 3 methods × 3 modalities, evaluation, verdicts, sample
-//! grids) runs and writes its report; run again into the same `--out`, it redoes nothing but
+//! grids and figures) runs and writes its report; run again into the same `--out`, it redoes nothing but
 //! the evaluation and gives the same numbers.
 
 use std::process::Command;
@@ -80,6 +80,25 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
             .to_rgb8();
         // I_s | Î_t | I_t, 4 rows, at the network's 32 × 24, enlarged 5 times.
         assert_eq!(img.dimensions(), (480, 480), "{name}");
+    }
+    // The error violins (2 groups × 3 axes) and the force over time (sphere and hemisphere
+    // seen, the cone unseen: 3 rows), each with every method's colour drawn.
+    for (file, size) in [
+        ("error-by-force-range.png", (1500, 860)),
+        ("force-over-time.png", (1500, 3 * 250 + 50)),
+    ] {
+        let img = image::open(out.join("figures").join(file))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(img.dimensions(), size, "{file}");
+        for (method, rgb) in [
+            ("source-only", [214, 39, 40]),
+            ("TransForce (no LSTM)", [44, 160, 44]),
+            ("TransForce", [31, 119, 180]),
+        ] {
+            let n = img.pixels().filter(|p| p.0 == rgb).count();
+            assert!(n > 200, "{file}: {n} pixels of {method}'s colour");
+        }
     }
 
     // Again into the same directory: nothing recorded, translated or trained anew.

@@ -79,7 +79,12 @@ pub fn aggregate(rows: &[Row]) -> Vec<Aggregate> {
 }
 
 /// The best (lowest mean MAE) modality of `method` in `group` on `axis`.
-fn best<'a>(agg: &'a [Aggregate], method: &str, group: &str, axis: usize) -> Option<&'a Aggregate> {
+pub(super) fn best<'a>(
+    agg: &'a [Aggregate],
+    method: &str,
+    group: &str,
+    axis: usize,
+) -> Option<&'a Aggregate> {
     agg.iter()
         .filter(|a| a.method == method && a.group == group)
         .min_by(|a, b| a.mae[axis].total_cmp(&b.mae[axis]))
@@ -343,7 +348,7 @@ pub fn markdown(r: &Reproduction) -> String {
     for n in &r.fid_notes {
         s.push_str(&format!("\n- {n}"));
     }
-    s.push_str("\n\nSample grids (I_s | Î_t | I_t): `figures/samples-seen.png`, `figures/samples-unseen.png`; predicted against true force per model: `results/models/<model>/pred-vs-true-*.svg`.\n\n## Verdicts\n\n");
+    s.push_str("\n\nFigures: the absolute error by force range, per method, seen and unseen (the paper's violin figure): `figures/error-by-force-range.png`; predicted and true force over time for a few trajectories: `figures/force-over-time.png` (both with TransForce's best modality per axis); sample grids (I_s | Î_t | I_t): `figures/samples-seen.png`, `figures/samples-unseen.png`; predicted against true force per model: `results/models/<model>/pred-vs-true-*.svg`.\n\n## Verdicts\n\n");
     for v in &r.verdicts {
         s.push_str(&format!(
             "- **{}**: {}.\n  {}\n",

@@ -40,13 +40,14 @@ use serde::{Deserialize, Serialize};
 
 use super::cyclegan::{self, TranslateConfig};
 use super::data::{self, ImageSpec, LabelledSet, PAPER_EXCLUDED, PAPER_UNSEEN, Split};
-use super::demo::{collect, sized_camera, train_force};
+use super::demo::{collect_both, sized_camera, train_force};
 use super::eval::{self, FidConfig};
-use super::force::ForceConfig;
+use super::force::{ForceConfig, ForceModel};
 use super::modality::Modality;
 use super::nn::Depth;
 use super::report::{FidRow, Row};
 
+mod figures;
 mod findings;
 pub use findings::{Aggregate, Verdict, aggregate, markdown, verdicts};
 
@@ -161,11 +162,13 @@ impl Protocol {
                     steps_per_epoch: Some(250),
                     ..small_gan
                 },
-                // About 960 Adam steps of 16 sequences (960 training trajectories, 4
-                // sequences each): the quick demo's models learnt shear on their own sensor
-                // in 720 (the quick demo now trains 360: it asserts normal force only).
+                // 480 Adam steps of 16 sequences (960 training trajectories, 4 sequences
+                // each, 2 epochs): 27 models of ResNet-18 width 8 train at about 55 sequences/s
+                // on 2 cores (two at a time; 41/s one alone, `rig bench train --speed --width 8
+                // --batch 16`), so this is an hour of the two. The quick demo's models learn
+                // normal force in 360 steps; they learnt shear on their own sensor in 720.
                 force: ForceConfig {
-                    epochs: 4,
+                    epochs: 2,
                     ..small_force
                 },
                 fid: FidConfig {
@@ -285,12 +288,11 @@ pub fn run(
         indenters.len(),
         protocol.trajectories_per_sensor()
     );
-    let mut recorded = false;
-    for ind in &indenters {
-        for (cfg, dir) in [(&source_cfg, &src_dir), (&target_cfg, &tgt_dir)] {
-            recorded |= collect(cfg, ind, &dir.join(ind.as_str()), progress)?;
-        }
-    }
+    let recorded = collect_both(
+        [(&source_cfg, &src_dir), (&target_cfg, &tgt_dir)],
+        &indenters,
+        progress,
+    )?;
     phases.done(out, "collect", t, recorded)?;
 
     // 2. Translate (seen indenters), then the unseen source images through the translator.
@@ -449,12 +451,45 @@ pub fn run(
     let t = Instant::now();
     eprintln!("[5/5] evaluating on the target sensor");
     let mut rows = Vec::new();
-    for (_, _, seed, dir, _, _) in &jobs {
-        let name = dir.file_name().map(|n| n.to_string_lossy().into_owned());
-        let plots = out.join("results/models").join(name.unwrap_or_default());
-        for mut r in eval::evaluate(dir, &tgt_dir, &plots, &split, progress)? {
-            r.method = format!("{}#{seed}", r.method);
-            rows.push(r);
+    let mut predictions = Vec::new();
+    let mut ids: Vec<(String, String)> = Vec::new();
+    // The target set is read once per modality, not once per model.
+    for &m in &protocol.modalities {
+        let spec = ImageSpec {
+            modality: m,
+            ..rgbm
+        };
+        let set = data::load_eval(&tgt_dir, &spec, progress)?;
+        if ids.is_empty() {
+            ids = set
+                .trajectories
+                .iter()
+                .map(|t| (t.indenter.clone(), t.id.clone()))
+                .collect();
+        }
+        for (method, _, seed, dir, _, _) in jobs.iter().filter(|j| j.1 == m) {
+            let name = dir.file_name().map(|n| n.to_string_lossy().into_owned());
+            let plots = out.join("results/models").join(name.unwrap_or_default());
+            let model = ForceModel::load(dir)
+                .with_context(|| format!("loading the model in {}", dir.display()))?;
+            anyhow::ensure!(
+                model.spec() == spec,
+                "{} was trained on other images ({:?}) than this protocol's ({spec:?}); \
+                 use a fresh --out",
+                dir.display(),
+                model.spec()
+            );
+            let (model_rows, p) = eval::evaluate_on(&model, &set, &tgt_dir, &plots, &split)?;
+            for mut r in model_rows {
+                r.method = format!("{}#{seed}", r.method);
+                rows.push(r);
+            }
+            predictions.push(figures::ModelPredictions {
+                method: method.clone(),
+                modality: m.paper_name().to_owned(),
+                seed: *seed,
+                p,
+            });
         }
     }
     let seedless: Vec<Row> = rows
@@ -465,6 +500,22 @@ pub fn run(
         })
         .collect();
     let agg = aggregate(&seedless);
+    let shown = figures::figure_modalities(&agg, Modality::RgbMarker.paper_name());
+    figures::error_violins(
+        &out.join("figures/error-by-force-range.png"),
+        &predictions,
+        &shown,
+        &split,
+    )?;
+    figures::force_over_time(
+        &out.join("figures/force-over-time.png"),
+        &predictions,
+        &shown,
+        &ids,
+        &figures::pick_trajectories(&ids, &split, 2),
+        protocol.fps,
+    )?;
+    drop(predictions);
     let target_eval = data::load_eval(&tgt_dir, &rgbm, false)?;
     let mut bounds = [(f32::INFINITY, f32::NEG_INFINITY); 3];
     for i in 0..target_eval.trajectories.len() {
