@@ -56,7 +56,7 @@ pub use findings::{Aggregate, Verdict, aggregate, markdown, verdicts};
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size 2 CPU cores run in about two hours.
+    /// The whole split at a size 2 CPU cores run in a little over two hours (133 min measured).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
