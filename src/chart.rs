@@ -51,3 +51,23 @@ where
         .draw()
         .map_err(|e| anyhow::anyhow!("drawing the legend: {e}"))
 }
+
+/// [`legend`] at `position`, its labels `font_px` high (the multi-panel figures, where the
+/// default place would cover the data).
+pub fn legend_at<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+    font_px: u32,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_series_labels()
+        .label_font(("sans-serif", font_px))
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .position(position)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("drawing the legend: {e}"))
+}

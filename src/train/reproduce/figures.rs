@@ -225,14 +225,7 @@ fn violin_panel(
                 Rectangle::new([(x, y - 5), (x + 14, y + 5)], c.mix(0.6).filled())
             });
     }
-    chart
-        .configure_series_labels()
-        .label_font(("sans-serif", 13))
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.85))
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
-    Ok(())
+    crate::chart::legend_at(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
 /// The trajectories the time figure shows: up to `per_group` indenters of the seen and of the
@@ -363,14 +356,7 @@ fn time_panel(
     if !legend {
         return Ok(());
     }
-    chart
-        .configure_series_labels()
-        .label_font(("sans-serif", 12))
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.85))
-        .position(SeriesLabelPosition::UpperLeft)
-        .draw()?;
-    Ok(())
+    crate::chart::legend_at(&mut chart, SeriesLabelPosition::UpperLeft, 12)
 }
 
 #[cfg(test)]
