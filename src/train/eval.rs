@@ -77,6 +77,19 @@ pub fn predict(model: &ForceModel, set: &EvalSet) -> Predictions {
     p
 }
 
+/// The set's force range per axis, N: max − min over every frame (0 for an empty set).
+pub fn force_range(set: &EvalSet) -> [f64; 3] {
+    let mut bounds = [(f32::INFINITY, f32::NEG_INFINITY); 3];
+    for i in 0..set.trajectories.len() {
+        for f in set.forces(i) {
+            for a in 0..3 {
+                bounds[a] = (bounds[a].0.min(f[a]), bounds[a].1.max(f[a]));
+            }
+        }
+    }
+    bounds.map(|(lo, hi)| if hi >= lo { (hi - lo) as f64 } else { 0.0 })
+}
+
 /// Table rows for the seen and unseen groups (those present) and all together.
 pub fn rows(method: &str, modality: &str, p: &Predictions, split: &Split) -> Vec<Row> {
     let mut rows = Vec::new();
@@ -427,6 +440,33 @@ pub fn fid_notes(net: &Result<Inception, String>, rows: &[FidRow], cfg: &FidConf
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_force_range_spans_every_trajectory_per_axis() {
+        let spec = ImageSpec {
+            width: 4,
+            height: 4,
+            modality: super::super::modality::Modality::Rgb,
+        };
+        let traj = |id: &str, n: usize| Trajectory {
+            id: id.into(),
+            indenter: "sphere".into(),
+            pixels: vec![0; n * spec.frame_bytes()],
+            frames: n,
+        };
+        let set = EvalSet::from_parts(
+            spec,
+            vec![traj("a", 2), traj("b", 3)],
+            vec![
+                vec![[0.5, -1.0, 0.0], [1.5, 0.0, -4.0]],
+                vec![[-0.5, 2.0, -16.0], [0.0, 0.0, -2.0], [0.25, 1.0, 0.0]],
+            ],
+        )
+        .unwrap();
+        assert_eq!(force_range(&set), [2.0, 3.0, 16.0]);
+        let empty = EvalSet::from_parts(spec, Vec::new(), Vec::new()).unwrap();
+        assert_eq!(force_range(&empty), [0.0; 3]);
+    }
 
     #[test]
     fn eval_windows_score_every_frame_once_at_the_training_stride() {

@@ -46,6 +46,10 @@ pub struct Table {
     /// Why FID/KID are missing, or what to keep in mind reading them.
     #[serde(default)]
     pub fid_notes: Vec<String>,
+    /// The evaluation set's force range per axis, N (max − min over every frame), when known:
+    /// the markdown then also gives each MAE as % of it (the paper's measure).
+    #[serde(default)]
+    pub range_n: Option<[f64; 3]>,
 }
 
 fn num(v: f64) -> String {
@@ -86,6 +90,32 @@ impl Table {
                     num(r.r2[1]),
                     num(r.r2[2]),
                     r.n
+                ));
+            }
+        }
+        if let (Some(range), false) = (self.range_n, self.rows.is_empty()) {
+            s.push_str(&format!(
+                "\nMAE as % of the target's force range (Fx {:.2} N, Fy {:.2} N, Fz {:.2} N):\n\n\
+                 | Method | Modality | Group | Fx % | Fy % | Fz % |\n\
+                 | --- | --- | --- | ---: | ---: | ---: |\n",
+                range[0], range[1], range[2]
+            ));
+            for r in &self.rows {
+                let pct = |a: usize| {
+                    if range[a] > 0.0 {
+                        format!("{:.1}", 100.0 * r.mae[a] / range[a])
+                    } else {
+                        "—".into()
+                    }
+                };
+                s.push_str(&format!(
+                    "| {} | {} | {} | {} | {} | {} |\n",
+                    r.method,
+                    r.modality,
+                    r.group,
+                    pct(0),
+                    pct(1),
+                    pct(2)
                 ));
             }
         }
@@ -253,6 +283,7 @@ mod tests {
                 },
             ],
             fid_notes: Vec::new(),
+            range_n: None,
             fid: vec![
                 FidRow {
                     group: "seen".into(),
@@ -303,6 +334,24 @@ mod tests {
             "TransForce,R+M,seen,0.1,0.2,0.3,0.25,0.9,0.8,NaN,10"
         );
         assert_eq!(lines[2], "\"a, \"\"b\"\"\",M,unseen,1,2,3,2.5,-0.5,0,1,4");
+    }
+
+    #[test]
+    fn with_a_force_range_the_markdown_gives_each_mae_as_percent_of_it() {
+        let mut t = table();
+        assert!(!t.markdown().contains("% of the target"));
+        t.range_n = Some([2.0, 4.0, 0.0]);
+        let md = t.markdown();
+        assert!(md.contains("(Fx 2.00 N, Fy 4.00 N, Fz 0.00 N)"), "{md}");
+        // 0.1 / 2 and 0.2 / 4 are 5 %; a zero range has no percentage.
+        assert!(
+            md.contains("| TransForce | R+M | seen | 5.0 | 5.0 | — |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| a, \"b\" | M | unseen | 50.0 | 50.0 | — |"),
+            "{md}"
+        );
     }
 
     #[test]

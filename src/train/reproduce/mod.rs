@@ -13,14 +13,17 @@
 //! checkpoint; the evaluation and the report are recomputed, they take seconds).
 //!
 //! 1. **collect**: each indenter's plan on both sensors (`data/source/<indenter>`,
-//!    `data/target/<indenter>`);
+//!    `data/target/<indenter>`), two recordings per core at a time (a simulated rig at ×10
+//!    keeps about half a core busy);
 //! 2. **translate**: one CycleGAN on the seen indenters' source and target images; then the
 //!    seen and the unseen source images through it (`translate/translated`,
 //!    `translate/translated-unseen`). One translator serves every seed: the seeds vary the
 //!    force models (initial weights and batch order), not the translation;
 //! 3. **fid**: FID and KID (Inception-v3) of I_s–I_t, Î_t–I_t and I_s–Î_t, seen and unseen;
-//! 4. **train**: methods × modalities × seeds force models, two at a time;
-//! 5. **evaluate** on the target sensor, and **report**: `results/reproduce.md` (tables with
+//! 4. **train**: methods × modalities × seeds force models, two at a time. The source-only
+//!    baselines need no translation: one of them trains beside phases 2 and 3 from their
+//!    start, and the phases' wall times stay consecutive (phase 4's counts from the end of 3);
+//! 5. **evaluate** on the target sensor (two models at a time), and **report**: `results/reproduce.md` (tables with
 //!    the paper's numbers, verdicts per claim, wall time per phase), `results/rows.json`,
 //!    `figures/samples-{seen,unseen}.png` (I_s | Î_t | I_t).
 //!
@@ -32,6 +35,7 @@
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -40,7 +44,7 @@ use serde::{Deserialize, Serialize};
 
 use super::cyclegan::{self, TranslateConfig};
 use super::data::{self, ImageSpec, LabelledSet, PAPER_EXCLUDED, PAPER_UNSEEN, Split};
-use super::demo::{collect_both, sized_camera, train_force};
+use super::demo::{collect_parallel, collect_workers, sized_camera, train_force};
 use super::eval::{self, FidConfig};
 use super::force::{ForceConfig, ForceModel};
 use super::modality::Modality;
@@ -288,13 +292,322 @@ pub fn run(
         indenters.len(),
         protocol.trajectories_per_sensor()
     );
-    let recorded = collect_both(
-        [(&source_cfg, &src_dir), (&target_cfg, &tgt_dir)],
+    let recorded = collect_parallel(
+        &[(&source_cfg, &src_dir), (&target_cfg, &tgt_dir)],
         &indenters,
+        match protocol.scale {
+            // The test's scale, beside other tests: the two sensors side by side.
+            Scale::Tiny => 2,
+            Scale::Cpu | Scale::Paper => collect_workers(),
+        },
         progress,
     )?;
     phases.done(out, "collect", t, recorded)?;
 
+    // The force models: methods × modalities × seeds, the source-only baselines first. They
+    // need no translation, so they train beside it (phases 2 and 3 keep one core of two busy
+    // at most part of the time); the others wait for the translated images.
+    let mut jobs: Vec<Job> = Vec::new();
+    for (name, translated, lstm) in METHODS {
+        for &seed in &protocol.seeds {
+            for &m in &protocol.modalities {
+                let dir = out.join(format!(
+                    "models/{}-{}-s{seed}",
+                    eval::slug(name),
+                    eval::slug(m.name())
+                ));
+                jobs.push(Job {
+                    method: name.to_owned(),
+                    modality: m,
+                    seed,
+                    dir,
+                    translated,
+                    lstm,
+                });
+            }
+        }
+    }
+    let rgbm = ImageSpec {
+        width: protocol.spec.0,
+        height: protocol.spec.1,
+        modality: Modality::RgbMarker,
+    };
+    let tdir = out.join("translate");
+    let trainer = Trainer {
+        protocol,
+        jobs: &jobs,
+        split: &split,
+        rgbm,
+        src_dir: &src_dir,
+        translated_dir: tdir.join("translated"),
+        next: AtomicUsize::new(0),
+        translation_ready: AtomicBool::new(false),
+        stop: AtomicBool::new(false),
+        trained: AtomicBool::new(false),
+        sets: Default::default(),
+    };
+    let (fid, fid_notes) = std::thread::scope(|s| -> anyhow::Result<_> {
+        let early = s.spawn(|| trainer.work());
+        let main = (|| -> anyhow::Result<_> {
+            let r = translate_and_fid(protocol, out, &net, &mut phases, progress)?;
+            trainer.translation_ready.store(true, Ordering::Relaxed);
+            // 4. Train the rest, two at a time (the early worker goes on beside this one).
+            let t = Instant::now();
+            eprintln!(
+                "[4/5] training {} force models ({} methods × {} modalities × {} seeds; the \
+                 source-only ones began during translation)",
+                jobs.len(),
+                METHODS.len(),
+                protocol.modalities.len(),
+                protocol.seeds.len()
+            );
+            trainer.work()?;
+            Ok((r, t))
+        })();
+        if main.is_err() {
+            trainer.stop.store(true, Ordering::Relaxed);
+        }
+        let early = early
+            .join()
+            .map_err(|_| anyhow::anyhow!("a training thread panicked"));
+        let (r, t) = main?;
+        early??;
+        phases.done(out, "train", t, trainer.trained.load(Ordering::Relaxed))?;
+        Ok(r)
+    })?;
+    // The training sets' memory, before the target's are read.
+    drop(trainer);
+
+    // 5. Evaluate on the target sensor, and report.
+    let t = Instant::now();
+    eprintln!("[5/5] evaluating on the target sensor");
+    let mut rows = Vec::new();
+    let mut predictions = Vec::new();
+    let mut ids: Vec<(String, String)> = Vec::new();
+    // The target set is read once per modality, not once per model.
+    for &m in &protocol.modalities {
+        let spec = ImageSpec {
+            modality: m,
+            ..rgbm
+        };
+        let set = data::load_eval(&tgt_dir, &spec, progress)?;
+        if ids.is_empty() {
+            ids = set
+                .trajectories
+                .iter()
+                .map(|t| (t.indenter.clone(), t.id.clone()))
+                .collect();
+        }
+        // Two models at a time: a prediction keeps two cores busy only part of the time,
+        // and each model's plot is drawn on one.
+        let mine: Vec<&Job> = jobs.iter().filter(|j| j.modality == m).collect();
+        let done = std::sync::Mutex::new(Vec::new());
+        let next = AtomicUsize::new(0);
+        let evaluate_one = |job: &Job| -> anyhow::Result<(Vec<Row>, eval::Predictions)> {
+            let name = job
+                .dir
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned());
+            let plots = out.join("results/models").join(name.unwrap_or_default());
+            let model = ForceModel::load(&job.dir)
+                .with_context(|| format!("loading the model in {}", job.dir.display()))?;
+            anyhow::ensure!(
+                model.spec() == spec,
+                "{} was trained on other images ({:?}) than this protocol's ({spec:?}); \
+                 use a fresh --out",
+                job.dir.display(),
+                model.spec()
+            );
+            eval::evaluate_on(&model, &set, &tgt_dir, &plots, &split)
+        };
+        std::thread::scope(|s| -> anyhow::Result<()> {
+            let work = || -> anyhow::Result<()> {
+                while let Some(&job) = mine.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let r = evaluate_one(job)?;
+                    done.lock()
+                        .map_err(|_| anyhow::anyhow!("poisoned"))?
+                        .push((job, r));
+                }
+                Ok(())
+            };
+            let other = s.spawn(work);
+            let a = work();
+            let b = other
+                .join()
+                .map_err(|_| anyhow::anyhow!("an evaluation thread panicked"))?;
+            a.and(b)
+        })?;
+        let mut done = done.into_inner().map_err(|_| anyhow::anyhow!("poisoned"))?;
+        done.sort_by_key(|(job, _)| (job.method.clone(), job.seed));
+        for (job, (model_rows, p)) in done {
+            for mut r in model_rows {
+                r.method = format!("{}#{}", r.method, job.seed);
+                rows.push(r);
+            }
+            predictions.push(figures::ModelPredictions {
+                method: job.method.clone(),
+                modality: m.paper_name().to_owned(),
+                seed: job.seed,
+                p,
+            });
+        }
+    }
+    let seedless: Vec<Row> = rows
+        .iter()
+        .map(|r| Row {
+            method: r.method.split('#').next().unwrap_or_default().to_owned(),
+            ..r.clone()
+        })
+        .collect();
+    let agg = aggregate(&seedless);
+    let shown = figures::figure_modalities(&agg, Modality::RgbMarker.paper_name());
+    figures::error_violins(
+        &out.join("figures/error-by-force-range.png"),
+        &predictions,
+        &shown,
+        &split,
+    )?;
+    figures::force_over_time(
+        &out.join("figures/force-over-time.png"),
+        &predictions,
+        &shown,
+        &ids,
+        &figures::pick_trajectories(&ids, &split, 2),
+        protocol.fps,
+    )?;
+    drop(predictions);
+    let range_n = eval::force_range(&data::load_eval(&tgt_dir, &rgbm, false)?);
+    let verdicts = verdicts(&agg, range_n, &fid);
+    phases.done(out, "evaluate", t, true)?;
+    let result = Reproduction {
+        scale: protocol.scale,
+        rows,
+        aggregate: agg,
+        fid,
+        fid_notes,
+        range_n,
+        verdicts,
+        phases_s: phases.0.clone(),
+    };
+    let results = out.join("results");
+    std::fs::create_dir_all(&results)?;
+    crate::durable::write_atomic(
+        &results.join("rows.json"),
+        &serde_json::to_vec_pretty(&result)?,
+    )?;
+    crate::durable::write_atomic(&results.join("reproduce.md"), markdown(&result).as_bytes())?;
+    Ok(result)
+}
+
+/// One force model to train.
+struct Job {
+    method: String,
+    modality: Modality,
+    seed: u64,
+    dir: PathBuf,
+    /// Trained on the translated images (else on the source sensor's own).
+    translated: bool,
+    lstm: bool,
+}
+
+/// The force models' shared queue, taken in order by each worker.
+struct Trainer<'a> {
+    protocol: &'a Protocol,
+    jobs: &'a [Job],
+    split: &'a Split,
+    rgbm: ImageSpec,
+    src_dir: &'a Path,
+    translated_dir: PathBuf,
+    next: AtomicUsize,
+    /// The translated images are written: the TransForce models may start.
+    translation_ready: AtomicBool,
+    /// Something failed: take no more jobs, stop waiting.
+    stop: AtomicBool,
+    /// Some model was trained (not only found done).
+    trained: AtomicBool,
+    /// The training sets loaded so far, by (translated, modality): 27 models train on 6 sets,
+    /// and reading one from its recordings takes longer than a few epochs' batches.
+    sets: std::sync::Mutex<BTreeMap<(bool, &'static str), std::sync::Arc<LabelledSet>>>,
+}
+
+impl Trainer<'_> {
+    /// Trains jobs off the queue until it is empty; a job on translated images waits until
+    /// they are ready. A failure stops every worker after its current model.
+    fn work(&self) -> anyhow::Result<()> {
+        let r = self.work_inner();
+        if r.is_err() {
+            self.stop.store(true, Ordering::Relaxed);
+        }
+        r
+    }
+
+    fn work_inner(&self) -> anyhow::Result<()> {
+        while !self.stop.load(Ordering::Relaxed) {
+            let Some(job) = self.jobs.get(self.next.fetch_add(1, Ordering::Relaxed)) else {
+                return Ok(());
+            };
+            while job.translated && !self.translation_ready.load(Ordering::Relaxed) {
+                if self.stop.load(Ordering::Relaxed) {
+                    return Ok(());
+                }
+                std::thread::sleep(std::time::Duration::from_millis(200));
+            }
+            self.train(job)
+                .with_context(|| format!("training {}", job.dir.display()))?;
+        }
+        Ok(())
+    }
+
+    fn train(&self, job: &Job) -> anyhow::Result<()> {
+        if job.dir.join("DONE").is_file() {
+            return Ok(());
+        }
+        let spec = ImageSpec {
+            modality: job.modality,
+            ..self.rgbm
+        };
+        let dir = if job.translated {
+            &self.translated_dir
+        } else {
+            self.src_dir
+        };
+        let key = (job.translated, job.modality.name());
+        let cached = self.sets.lock().ok().and_then(|m| m.get(&key).cloned());
+        let set = match cached {
+            Some(set) => set,
+            None => {
+                let set = std::sync::Arc::new(
+                    data::load_labelled(dir, &spec, false)?.seen_only(self.split),
+                );
+                if let Ok(mut m) = self.sets.lock() {
+                    m.insert(key, set.clone());
+                }
+                set
+            }
+        };
+        let cfg = ForceConfig {
+            lstm: job.lstm,
+            seed: job.seed,
+            ..self.protocol.force.clone()
+        };
+        train_force(&set, &cfg, &job.method, job.modality, &job.dir)?;
+        std::fs::write(job.dir.join("DONE"), b"")?;
+        self.trained.store(true, Ordering::Relaxed);
+        Ok(())
+    }
+}
+
+/// Phases 2 and 3: the translator (seen indenters), the seen and unseen source images through
+/// it, the sample grids; then FID and KID. Returns the FID rows and their notes.
+fn translate_and_fid(
+    protocol: &Protocol,
+    out: &Path,
+    net: &Result<super::inception::Inception, String>,
+    phases: &mut Phases,
+    progress: bool,
+) -> anyhow::Result<(Vec<FidRow>, Vec<String>)> {
+    let split = protocol.split();
+    let (src_dir, tgt_dir) = (out.join("data/source"), out.join("data/target"));
     // 2. Translate (seen indenters), then the unseen source images through the translator.
     let t = Instant::now();
     let rgbm = ImageSpec {
@@ -360,192 +673,14 @@ pub fn run(
                 net.as_ref().ok(),
                 progress,
             )?;
-            let notes = eval::fid_notes(&net, &rows, &protocol.fid);
+            let notes = eval::fid_notes(net, &rows, &protocol.fid);
             std::fs::create_dir_all(out.join("results"))?;
             crate::durable::write_atomic(&fid_file, &serde_json::to_vec_pretty(&(&rows, &notes))?)?;
             (rows, notes, true)
         }
     };
     phases.done(out, "fid", t, fid_work)?;
-
-    // 4. Train: methods × modalities × seeds, two at a time.
-    let t = Instant::now();
-    let mut jobs: Vec<(String, Modality, u64, PathBuf, bool, bool)> = Vec::new();
-    for &seed in &protocol.seeds {
-        for &m in &protocol.modalities {
-            for (name, translated, lstm) in METHODS {
-                let dir = out.join(format!(
-                    "models/{}-{}-s{seed}",
-                    eval::slug(name),
-                    eval::slug(m.name())
-                ));
-                jobs.push((name.to_owned(), m, seed, dir, translated, lstm));
-            }
-        }
-    }
-    eprintln!(
-        "[4/5] training {} force models ({} methods × {} modalities × {} seeds)",
-        jobs.len(),
-        METHODS.len(),
-        protocol.modalities.len(),
-        protocol.seeds.len()
-    );
-    let trained = std::sync::atomic::AtomicBool::new(false);
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let train_one = |(name, m, seed, dir, translated, lstm): &(
-        String,
-        Modality,
-        u64,
-        PathBuf,
-        bool,
-        bool,
-    )|
-     -> anyhow::Result<()> {
-        if dir.join("DONE").is_file() {
-            return Ok(());
-        }
-        let spec = ImageSpec {
-            modality: *m,
-            ..rgbm
-        };
-        let set = if *translated {
-            data::load_labelled(&tdir.join("translated"), &spec, false)?
-        } else {
-            data::load_labelled(&src_dir, &spec, false)?
-        }
-        .seen_only(&split);
-        let cfg = ForceConfig {
-            lstm: *lstm,
-            seed: *seed,
-            ..protocol.force.clone()
-        };
-        train_force(&set, &cfg, name, *m, dir)?;
-        std::fs::write(dir.join("DONE"), b"")?;
-        trained.store(true, std::sync::atomic::Ordering::Relaxed);
-        Ok(())
-    };
-    std::thread::scope(|s| -> anyhow::Result<()> {
-        let worker = || -> anyhow::Result<()> {
-            loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(job) = jobs.get(i) else {
-                    return Ok(());
-                };
-                train_one(job).with_context(|| format!("training {}", job.3.display()))?;
-            }
-        };
-        let other = s.spawn(worker);
-        worker()?;
-        other
-            .join()
-            .map_err(|_| anyhow::anyhow!("a training thread panicked"))?
-    })?;
-    phases.done(
-        out,
-        "train",
-        t,
-        trained.load(std::sync::atomic::Ordering::Relaxed),
-    )?;
-
-    // 5. Evaluate on the target sensor, and report.
-    let t = Instant::now();
-    eprintln!("[5/5] evaluating on the target sensor");
-    let mut rows = Vec::new();
-    let mut predictions = Vec::new();
-    let mut ids: Vec<(String, String)> = Vec::new();
-    // The target set is read once per modality, not once per model.
-    for &m in &protocol.modalities {
-        let spec = ImageSpec {
-            modality: m,
-            ..rgbm
-        };
-        let set = data::load_eval(&tgt_dir, &spec, progress)?;
-        if ids.is_empty() {
-            ids = set
-                .trajectories
-                .iter()
-                .map(|t| (t.indenter.clone(), t.id.clone()))
-                .collect();
-        }
-        for (method, _, seed, dir, _, _) in jobs.iter().filter(|j| j.1 == m) {
-            let name = dir.file_name().map(|n| n.to_string_lossy().into_owned());
-            let plots = out.join("results/models").join(name.unwrap_or_default());
-            let model = ForceModel::load(dir)
-                .with_context(|| format!("loading the model in {}", dir.display()))?;
-            anyhow::ensure!(
-                model.spec() == spec,
-                "{} was trained on other images ({:?}) than this protocol's ({spec:?}); \
-                 use a fresh --out",
-                dir.display(),
-                model.spec()
-            );
-            let (model_rows, p) = eval::evaluate_on(&model, &set, &tgt_dir, &plots, &split)?;
-            for mut r in model_rows {
-                r.method = format!("{}#{seed}", r.method);
-                rows.push(r);
-            }
-            predictions.push(figures::ModelPredictions {
-                method: method.clone(),
-                modality: m.paper_name().to_owned(),
-                seed: *seed,
-                p,
-            });
-        }
-    }
-    let seedless: Vec<Row> = rows
-        .iter()
-        .map(|r| Row {
-            method: r.method.split('#').next().unwrap_or_default().to_owned(),
-            ..r.clone()
-        })
-        .collect();
-    let agg = aggregate(&seedless);
-    let shown = figures::figure_modalities(&agg, Modality::RgbMarker.paper_name());
-    figures::error_violins(
-        &out.join("figures/error-by-force-range.png"),
-        &predictions,
-        &shown,
-        &split,
-    )?;
-    figures::force_over_time(
-        &out.join("figures/force-over-time.png"),
-        &predictions,
-        &shown,
-        &ids,
-        &figures::pick_trajectories(&ids, &split, 2),
-        protocol.fps,
-    )?;
-    drop(predictions);
-    let target_eval = data::load_eval(&tgt_dir, &rgbm, false)?;
-    let mut bounds = [(f32::INFINITY, f32::NEG_INFINITY); 3];
-    for i in 0..target_eval.trajectories.len() {
-        for f in target_eval.forces(i) {
-            for a in 0..3 {
-                bounds[a] = (bounds[a].0.min(f[a]), bounds[a].1.max(f[a]));
-            }
-        }
-    }
-    let range_n: [f64; 3] = std::array::from_fn(|a| (bounds[a].1 - bounds[a].0) as f64);
-    let verdicts = verdicts(&agg, range_n, &fid);
-    phases.done(out, "evaluate", t, true)?;
-    let result = Reproduction {
-        scale: protocol.scale,
-        rows,
-        aggregate: agg,
-        fid,
-        fid_notes,
-        range_n,
-        verdicts,
-        phases_s: phases.0.clone(),
-    };
-    let results = out.join("results");
-    std::fs::create_dir_all(&results)?;
-    crate::durable::write_atomic(
-        &results.join("rows.json"),
-        &serde_json::to_vec_pretty(&result)?,
-    )?;
-    crate::durable::write_atomic(&results.join("reproduce.md"), markdown(&result).as_bytes())?;
-    Ok(result)
+    Ok((fid, fid_notes))
 }
 
 /// The seen and the unseen (and not excluded) trajectories of a labelled set.
