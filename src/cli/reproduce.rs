@@ -9,9 +9,10 @@ use crate::train::reproduce::{self, Protocol, Scale};
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
     /// How big: `cpu` (the default) runs the whole split on 4 of the 12 directions with small
-    /// images and networks, in a little over two hours on 2 cores (133 min measured); `paper` runs the full protocol
-    /// (every trajectory, 320 × 240 frames, ResNet-50) and wants a GPU (build with
-    /// `--features gpu` or `wgpu`); `tiny` is the tests' few-minute version.
+    /// images and networks, in about two hours on 2 cores (133 min measured end to end; about
+    /// 120 projected from the phases measured since, with four recordings at a time); `paper`
+    /// runs the full protocol (every trajectory, 320 × 240 frames, ResNet-50) and wants a GPU
+    /// (build with `--features gpu` or `wgpu`); `tiny` is the tests' few-minute version.
     #[arg(long, value_enum, default_value = "cpu")]
     pub scale: Scale,
     /// Where the data, translator, models, results and figures go. Run again with the same

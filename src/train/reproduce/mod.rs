@@ -60,7 +60,8 @@ pub use findings::{Aggregate, Verdict, aggregate, markdown, verdicts};
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size 2 CPU cores run in a little over two hours (133 min measured).
+    /// The whole split at a size 2 CPU cores run in about two hours (133 min measured end to
+    /// end; about 120 projected from the phases measured since).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
