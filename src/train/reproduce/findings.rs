@@ -92,11 +92,60 @@ pub(super) fn best<'a>(
 
 const AXES: [&str; 3] = ["Fx", "Fy", "Fz"];
 
+/// What one axis says of "`a` predicts better than `b`".
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Compare {
+    Better,
+    Worse,
+    /// Neither model learnt the axis (R² ≤ 0: no better than predicting the mean), so which
+    /// MAE is lower is chance.
+    NotLearnt,
+    /// The MAEs differ by no more than the seeds' spread (the larger SD).
+    WithinSpread,
+}
+
+fn compare(a: &Aggregate, b: &Aggregate, axis: usize) -> Compare {
+    if a.r2[axis] <= 0.0 && b.r2[axis] <= 0.0 {
+        return Compare::NotLearnt;
+    }
+    let d = b.mae[axis] - a.mae[axis];
+    let spread = a.mae_sd[axis].max(b.mae_sd[axis]);
+    if d.abs() <= spread || d == 0.0 {
+        Compare::WithinSpread
+    } else if d > 0.0 {
+        Compare::Better
+    } else {
+        Compare::Worse
+    }
+}
+
+/// The outcome of a claim from its axes' comparisons: refuted by any axis where it is worse,
+/// reproduced when better on every one, inconclusive otherwise; `None` (something missing):
+/// not measured.
+fn judged(c: Option<&[Compare]>) -> String {
+    match c {
+        None => "not measured",
+        Some(c) if c.contains(&Compare::Worse) => "refuted",
+        Some(c) if c.iter().all(|x| *x == Compare::Better) => "reproduced",
+        Some(_) => "inconclusive",
+    }
+    .to_owned()
+}
+
+fn note(c: Compare) -> &'static str {
+    match c {
+        Compare::NotLearnt => " (neither learnt it: R² ≤ 0)",
+        Compare::WithinSpread => " (within the seeds' spread)",
+        _ => "",
+    }
+}
+
 /// One claim of the paper and what our numbers say of it.
 #[derive(Debug, Clone, Serialize)]
 pub struct Verdict {
     pub claim: String,
-    /// "reproduced", "refuted" or "not measured".
+    /// "reproduced", "refuted", "inconclusive" (a comparison within the seeds' spread, or on
+    /// an axis no model learnt) or "not measured".
     pub outcome: String,
     pub evidence: String,
 }
@@ -117,7 +166,7 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
 
     // 1. TransForce beats source-only, best modality per axis, each group.
     let mut ev = Vec::new();
-    let mut ok = Some(true);
+    let mut cmp = Some(Vec::new());
     let mut ratio_min = f64::INFINITY;
     for g in groups {
         for (a, name) in AXES.iter().enumerate() {
@@ -128,13 +177,20 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
                 (Some(t), Some(s)) => {
                     let r = s.mae[a] / t.mae[a];
                     ratio_min = ratio_min.min(r);
-                    ok = ok.map(|o| o && r > 1.0);
+                    let c = compare(t, s, a);
+                    if let Some(v) = cmp.as_mut() {
+                        v.push(c);
+                    }
                     ev.push(format!(
-                        "{g} {name}: {:.3} N ({}) against {:.3} N ({}), ×{r:.1}",
-                        t.mae[a], t.modality, s.mae[a], s.modality
+                        "{g} {name}: {:.3} N ({}) against {:.3} N ({}), ×{r:.1}{}",
+                        t.mae[a],
+                        t.modality,
+                        s.mae[a],
+                        s.modality,
+                        note(c)
                     ));
                 }
-                _ => ok = None,
+                _ => cmp = None,
             }
         }
     }
@@ -142,7 +198,7 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
         claim: "TransForce predicts the target sensor's force better than a model trained on \
                 the source sensor alone (best modality per axis, seen and unseen)"
             .into(),
-        outcome: outcome(ok),
+        outcome: judged(cmp.as_deref()),
         evidence: format!(
             "{}; smallest margin ×{ratio_min:.1} (the issue's bar: ×3)",
             ev.join("; ")
@@ -155,7 +211,7 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
         ("normal force (Fz)", &[2][..]),
     ] {
         let mut ev = Vec::new();
-        let mut ok = Some(true);
+        let mut cmp = Some(Vec::new());
         for g in groups {
             for &a in axes {
                 match (
@@ -163,43 +219,65 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
                     best(agg, "TransForce (no LSTM)", g, a),
                 ) {
                     (Some(l), Some(n)) => {
-                        ok = ok.map(|o| o && l.mae[a] < n.mae[a]);
+                        let c = compare(l, n, a);
+                        if let Some(v) = cmp.as_mut() {
+                            v.push(c);
+                        }
                         ev.push(format!(
-                            "{g} {}: {:.3} N with, {:.3} N without",
-                            AXES[a], l.mae[a], n.mae[a]
+                            "{g} {}: {:.3} N with, {:.3} N without{}",
+                            AXES[a],
+                            l.mae[a],
+                            n.mae[a],
+                            note(c)
                         ));
                     }
-                    _ => ok = None,
+                    _ => cmp = None,
                 }
             }
         }
         out.push(Verdict {
             claim: format!("The LSTM over the frame sequence improves {label}"),
-            outcome: outcome(ok),
+            outcome: judged(cmp.as_deref()),
             evidence: ev.join("; "),
         });
     }
 
     // 3. The modality finding (TransForce, seen): M best for shear, R+M best for normal force.
-    let modality_of = |a: usize| best(agg, "TransForce", "seen", a).map(|b| b.modality.clone());
-    let found = [modality_of(0), modality_of(1), modality_of(2)];
-    let ok = if found.iter().all(Option::is_some) {
-        Some(
-            found[0].as_deref() == Some("M")
-                && found[1].as_deref() == Some("M")
-                && found[2].as_deref() == Some("R+M"),
-        )
+    // An axis no modality learnt (R² ≤ 0 for the best) says nothing of which is best.
+    let best_seen = [0, 1, 2].map(|a| best(agg, "TransForce", "seen", a));
+    let found = best_seen.map(|b| b.map(|b| b.modality.clone()));
+    let unlearnt: Vec<&str> = (0..3)
+        .filter(|&a| best_seen[a].is_some_and(|b| b.r2[a] <= 0.0))
+        .map(|a| AXES[a])
+        .collect();
+    let outcome3 = if !found.iter().all(Option::is_some) {
+        "not measured".to_owned()
+    } else if found[0].as_deref() == Some("M")
+        && found[1].as_deref() == Some("M")
+        && found[2].as_deref() == Some("R+M")
+    {
+        "reproduced".to_owned()
+    } else if unlearnt.is_empty() {
+        "refuted".to_owned()
     } else {
-        None
+        "inconclusive".to_owned()
     };
     out.push(Verdict {
         claim: "Markers (M) are best for shear, R+M for normal force (TransForce, seen)".into(),
-        outcome: outcome(ok),
+        outcome: outcome3,
         evidence: format!(
-            "best modality: Fx {}, Fy {}, Fz {}",
+            "best modality: Fx {}, Fy {}, Fz {}{}",
             found[0].as_deref().unwrap_or("-"),
             found[1].as_deref().unwrap_or("-"),
-            found[2].as_deref().unwrap_or("-")
+            found[2].as_deref().unwrap_or("-"),
+            if unlearnt.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; no modality learnt {} (R² ≤ 0), so its best is chance",
+                    unlearnt.join(", ")
+                )
+            }
         ),
     });
 
@@ -366,4 +444,127 @@ pub fn markdown(r: &Reproduction) -> String {
         r.phases_s.values().sum::<f64>()
     ));
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An aggregate of 3 seeds with the same MAE, SD and R² on every axis.
+    fn agg(method: &str, modality: &str, group: &str, mae: f64, sd: f64, r2: f64) -> Aggregate {
+        Aggregate {
+            method: method.into(),
+            modality: modality.into(),
+            group: group.into(),
+            seeds: 3,
+            mae: [mae; 3],
+            mae_sd: [sd; 3],
+            r2: [r2; 3],
+            r2_sd: [0.01; 3],
+            total_mae: mae,
+            total_mae_sd: sd,
+        }
+    }
+
+    /// TransForce, its no-LSTM control and source-only in both groups, one modality.
+    fn three(tf: (f64, f64, f64), no_lstm: (f64, f64, f64), so: (f64, f64, f64)) -> Vec<Aggregate> {
+        let mut v = Vec::new();
+        for g in ["seen", "unseen"] {
+            for (m, (mae, sd, r2)) in [
+                ("TransForce", tf),
+                ("TransForce (no LSTM)", no_lstm),
+                ("source-only", so),
+            ] {
+                v.push(agg(m, "R+M", g, mae, sd, r2));
+            }
+        }
+        v
+    }
+
+    fn outcome_of(v: &[Verdict], claim_start: &str) -> String {
+        v.iter()
+            .find(|v| v.claim.starts_with(claim_start))
+            .unwrap_or_else(|| panic!("no verdict on {claim_start}: {v:?}"))
+            .outcome
+            .clone()
+    }
+
+    #[test]
+    fn a_margin_beyond_the_seeds_spread_on_learnt_axes_reproduces_a_claim() {
+        let v = verdicts(
+            &three((0.5, 0.05, 0.8), (0.7, 0.05, 0.7), (2.0, 0.1, 0.1)),
+            [10.0; 3],
+            &[],
+        );
+        assert_eq!(outcome_of(&v, "TransForce predicts"), "reproduced");
+        assert_eq!(
+            outcome_of(&v, "The LSTM over the frame sequence improves shear"),
+            "reproduced"
+        );
+        // No FID rows: not measured.
+        assert_eq!(outcome_of(&v, "Translation brings"), "not measured");
+    }
+
+    #[test]
+    fn a_difference_within_the_seeds_spread_is_inconclusive_and_a_clear_loss_refutes() {
+        // 0.50 ± 0.08 against 0.55 ± 0.03: the difference (0.05) is within the larger SD.
+        let v = verdicts(
+            &three((0.50, 0.08, 0.8), (0.55, 0.03, 0.8), (0.4, 0.01, 0.9)),
+            [10.0; 3],
+            &[],
+        );
+        let lstm = v
+            .iter()
+            .find(|v| v.claim.contains("improves shear"))
+            .unwrap();
+        assert_eq!(lstm.outcome, "inconclusive");
+        assert!(
+            lstm.evidence.contains("within the seeds' spread"),
+            "{}",
+            lstm.evidence
+        );
+        // Source-only 0.4 ± 0.01 against TransForce 0.5 ± 0.08: worse by more than the spread.
+        assert_eq!(outcome_of(&v, "TransForce predicts"), "refuted");
+    }
+
+    #[test]
+    fn an_axis_no_model_learnt_decides_nothing() {
+        // R² ≤ 0 for both: a lower MAE is the mean's luck, however far apart.
+        let v = verdicts(
+            &three(
+                (0.24, 0.001, -0.01),
+                (0.26, 0.001, -0.02),
+                (0.30, 0.001, 0.0),
+            ),
+            [10.0; 3],
+            &[],
+        );
+        let c = v
+            .iter()
+            .find(|v| v.claim.starts_with("TransForce predicts"))
+            .unwrap();
+        assert_eq!(c.outcome, "inconclusive");
+        assert!(c.evidence.contains("neither learnt it"), "{}", c.evidence);
+        assert_eq!(
+            outcome_of(&v, "The LSTM over the frame sequence improves normal"),
+            "inconclusive"
+        );
+        // The best modality (the only one, R+M) learnt nothing: the modality claim is open.
+        let m = v.iter().find(|v| v.claim.starts_with("Markers")).unwrap();
+        assert_eq!(m.outcome, "inconclusive");
+        assert!(
+            m.evidence.contains("no modality learnt Fx, Fy, Fz"),
+            "{}",
+            m.evidence
+        );
+    }
+
+    #[test]
+    fn a_learnt_axis_with_another_best_modality_refutes_the_modality_claim() {
+        let mut a = three((0.5, 0.01, 0.8), (0.6, 0.01, 0.7), (2.0, 0.1, 0.1));
+        a.push(agg("TransForce", "M", "seen", 0.9, 0.01, 0.5));
+        let v = verdicts(&a, [10.0; 3], &[]);
+        // R+M is best on every axis, and learnt them: the paper's M-for-shear is refuted.
+        assert_eq!(outcome_of(&v, "Markers"), "refuted");
+    }
 }
