@@ -342,8 +342,7 @@ pub fn run(
         src_dir: &src_dir,
         translated_dir: tdir.join("translated"),
         next: AtomicUsize::new(0),
-        translation_ready: AtomicBool::new(false),
-        stop: AtomicBool::new(false),
+        gate: Default::default(),
         trained: AtomicBool::new(false),
         sets: Default::default(),
     };
@@ -351,7 +350,7 @@ pub fn run(
         let early = s.spawn(|| trainer.work());
         let main = (|| -> anyhow::Result<_> {
             let r = translate_and_fid(protocol, out, &net, &mut phases, progress)?;
-            trainer.translation_ready.store(true, Ordering::Relaxed);
+            trainer.gate.set(|g| g.translation_ready = true);
             // 4. Train the rest, two at a time (the early worker goes on beside this one).
             let t = Instant::now();
             eprintln!(
@@ -366,7 +365,7 @@ pub fn run(
             Ok((r, t))
         })();
         if main.is_err() {
-            trainer.stop.store(true, Ordering::Relaxed);
+            trainer.gate.set(|g| g.stop = true);
         }
         let early = early
             .join()
@@ -401,7 +400,11 @@ pub fn run(
         }
         // Two models at a time: a prediction keeps two cores busy only part of the time,
         // and each model's plot is drawn on one.
-        let mine: Vec<&Job> = jobs.iter().filter(|j| j.modality == m).collect();
+        let mine: Vec<(usize, &Job)> = jobs
+            .iter()
+            .enumerate()
+            .filter(|(_, j)| j.modality == m)
+            .collect();
         let done = std::sync::Mutex::new(Vec::new());
         let next = AtomicUsize::new(0);
         let evaluate_one = |job: &Job| -> anyhow::Result<(Vec<Row>, eval::Predictions)> {
@@ -423,11 +426,11 @@ pub fn run(
         };
         std::thread::scope(|s| -> anyhow::Result<()> {
             let work = || -> anyhow::Result<()> {
-                while let Some(&job) = mine.get(next.fetch_add(1, Ordering::Relaxed)) {
+                while let Some(&(i, job)) = mine.get(next.fetch_add(1, Ordering::Relaxed)) {
                     let r = evaluate_one(job)?;
                     done.lock()
                         .map_err(|_| anyhow::anyhow!("poisoned"))?
-                        .push((job, r));
+                        .push((i, job, r));
                 }
                 Ok(())
             };
@@ -439,8 +442,9 @@ pub fn run(
             a.and(b)
         })?;
         let mut done = done.into_inner().map_err(|_| anyhow::anyhow!("poisoned"))?;
-        done.sort_by_key(|(job, _)| (job.method.clone(), job.seed));
-        for (job, (model_rows, p)) in done {
+        // The jobs' order (the paper's methods, then seeds), whichever model finished first.
+        done.sort_by_key(|(i, _, _)| *i);
+        for (_, job, (model_rows, p)) in done {
             for mut r in model_rows {
                 r.method = format!("{}#{}", r.method, job.seed);
                 rows.push(r);
@@ -500,6 +504,42 @@ pub fn run(
     Ok(result)
 }
 
+/// What the training workers wait on: the translated images, or a failure elsewhere.
+#[derive(Debug, Default, Clone, Copy)]
+struct GateState {
+    /// The translated images are written: the TransForce models may start.
+    translation_ready: bool,
+    /// Something failed: take no more jobs, stop waiting.
+    stop: bool,
+}
+
+#[derive(Default)]
+struct Gate {
+    state: std::sync::Mutex<GateState>,
+    changed: std::sync::Condvar,
+}
+
+impl Gate {
+    fn get(&self) -> GateState {
+        *self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Changes the state and wakes every waiting worker.
+    fn set(&self, f: impl FnOnce(&mut GateState)) {
+        f(&mut self.state.lock().unwrap_or_else(|p| p.into_inner()));
+        self.changed.notify_all();
+    }
+
+    /// Blocks until `done` holds, and returns the state then.
+    fn wait_until(&self, done: impl Fn(&GateState) -> bool) -> GateState {
+        let g = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        *self
+            .changed
+            .wait_while(g, |s| !done(s))
+            .unwrap_or_else(|p| p.into_inner())
+    }
+}
+
 /// One force model to train.
 struct Job {
     method: String,
@@ -521,9 +561,8 @@ struct Trainer<'a> {
     translated_dir: PathBuf,
     next: AtomicUsize,
     /// The translated images are written: the TransForce models may start.
-    translation_ready: AtomicBool,
-    /// Something failed: take no more jobs, stop waiting.
-    stop: AtomicBool,
+    /// Whether the translated images are ready, or something failed.
+    gate: Gate,
     /// Some model was trained (not only found done).
     trained: AtomicBool,
     /// The training sets loaded so far, by (translated, modality): 27 models train on 6 sets,
@@ -537,21 +576,18 @@ impl Trainer<'_> {
     fn work(&self) -> anyhow::Result<()> {
         let r = self.work_inner();
         if r.is_err() {
-            self.stop.store(true, Ordering::Relaxed);
+            self.gate.set(|g| g.stop = true);
         }
         r
     }
 
     fn work_inner(&self) -> anyhow::Result<()> {
-        while !self.stop.load(Ordering::Relaxed) {
+        while !self.gate.get().stop {
             let Some(job) = self.jobs.get(self.next.fetch_add(1, Ordering::Relaxed)) else {
                 return Ok(());
             };
-            while job.translated && !self.translation_ready.load(Ordering::Relaxed) {
-                if self.stop.load(Ordering::Relaxed) {
-                    return Ok(());
-                }
-                std::thread::sleep(std::time::Duration::from_millis(200));
+            if job.translated && self.gate.wait_until(|g| g.translation_ready || g.stop).stop {
+                return Ok(());
             }
             self.train(job)
                 .with_context(|| format!("training {}", job.dir.display()))?;
@@ -738,4 +774,41 @@ fn sample_grid(
         grid.height() * k,
         image::imageops::FilterType::Nearest,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_worker_waiting_for_the_translation_wakes_when_it_is_ready_or_when_a_failure_stops_it() {
+        for (what, set) in [
+            (
+                "ready",
+                (|g: &mut GateState| g.translation_ready = true) as fn(&mut GateState),
+            ),
+            ("stop", |g: &mut GateState| g.stop = true),
+        ] {
+            let gate = Gate::default();
+            let seen = std::thread::scope(|s| {
+                let waiter = s.spawn(|| gate.wait_until(|g| g.translation_ready || g.stop));
+                // The waiter blocks until the state changes (it has nothing to see before).
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                assert!(
+                    !waiter.is_finished(),
+                    "{what}: returned before the gate changed"
+                );
+                gate.set(set);
+                waiter.join().unwrap()
+            });
+            assert_eq!(
+                (seen.translation_ready, seen.stop),
+                (what == "ready", what == "stop"),
+                "{what}"
+            );
+            // A later wait on a state that already holds returns at once.
+            let again = gate.wait_until(|g| g.translation_ready || g.stop);
+            assert_eq!(again.stop, what == "stop");
+        }
+    }
 }
