@@ -12,7 +12,9 @@ pub struct ReproduceArgs {
     /// images and networks, in about two hours on 2 cores (133 min measured end to end; about
     /// 120 projected from the phases measured since, with four recordings at a time); `paper`
     /// runs the full protocol (every trajectory, 320 × 240 frames, ResNet-50) and wants a GPU
-    /// (build with `--features gpu` or `wgpu`); `tiny` is the tests' few-minute version.
+    /// (build with `--features gpu` or `wgpu`; with burn's wgpu kernels as measured on an H200
+    /// its training would take days: README, Features); `tiny` is the tests' few-minute
+    /// version.
     #[arg(long, value_enum, default_value = "cpu")]
     pub scale: Scale,
     /// Where the data, translator, models, results and figures go. Run again with the same

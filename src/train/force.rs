@@ -255,13 +255,18 @@ fn new_optimizer(kind: Optimizer) -> ModuleOptimizer {
 
 /// The device the trainer computes on: CUDA with the `gpu` feature; with `wgpu`, the GPU
 /// wgpu's heuristics pick (a high-power one first; `CUBECL_WGPU_DEFAULT_DEVICE`, e.g.
-/// `DiscreteGpu(1)`, overrides it); else the flex CPU backend.
+/// `DiscreteGpu(1)`, overrides it), on Vulkan with SPIR-V kernels when the `vulkan` feature
+/// is on; else the flex CPU backend.
 pub fn device() -> Device {
     #[cfg(feature = "gpu")]
     {
         Device::cuda(0)
     }
-    #[cfg(all(feature = "wgpu", not(feature = "gpu")))]
+    #[cfg(all(feature = "vulkan", not(feature = "gpu")))]
+    {
+        Device::vulkan(burn::tensor::DeviceKind::DefaultDevice)
+    }
+    #[cfg(all(feature = "wgpu", not(any(feature = "gpu", feature = "vulkan"))))]
     {
         Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
     }
