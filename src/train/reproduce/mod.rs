@@ -560,8 +560,8 @@ struct Trainer<'a> {
     src_dir: &'a Path,
     translated_dir: PathBuf,
     next: AtomicUsize,
-    /// The translated images are written: the TransForce models may start.
-    /// Whether the translated images are ready, or something failed.
+    /// Whether the translated images are ready (the TransForce models may start), or
+    /// something failed.
     gate: Gate,
     /// Some model was trained (not only found done).
     trained: AtomicBool,
