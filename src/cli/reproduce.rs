@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::train::reproduce::{self, Protocol, Scale};
+use crate::train::inception::{self, WeightsError};
+use crate::train::reproduce::{self, Fid, Protocol, Scale};
 
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
@@ -25,9 +26,14 @@ pub struct ReproduceArgs {
     #[arg(long, value_name = "N")]
     pub seeds: Option<u64>,
     /// Inception weights for FID/KID (default: $RIG_INCEPTION_WEIGHTS, else
-    /// ~/.cache/rig/inception-fid.safetensors, written by scripts/fetch-inception).
+    /// ~/.cache/rig/inception-fid.safetensors, written by scripts/fetch-inception). Without
+    /// them `--scale cpu` and `paper` stop before they start; `tiny` goes on without FID/KID.
     #[arg(long, value_name = "FILE")]
     pub inception: Option<PathBuf>,
+    /// Leave FID and KID out (no Inception weights needed; the translation table keeps its
+    /// colour-statistics distance).
+    #[arg(long, conflicts_with = "inception")]
+    pub no_fid: bool,
     /// The target sensor's rig config (default: rig-configs/sim-target.toml); a simulated
     /// rig. Use a fresh --out.
     #[arg(long, value_name = "FILE")]
@@ -41,12 +47,21 @@ pub fn run(args: &ReproduceArgs) -> anyhow::Result<()> {
         anyhow::ensure!(n >= 1, "--seeds must be at least 1");
         protocol.seeds = (1..=n).collect();
     }
-    let r = reproduce::run(
-        &protocol,
-        &args.out,
-        args.inception.as_deref(),
-        target.as_ref(),
-    )?;
+    let fid = if args.no_fid {
+        Fid::Skip
+    } else {
+        // A two-hour run should not find out at its third phase that it cannot say what the
+        // translation did.
+        let w = inception::weights_path(args.inception.as_deref());
+        if args.scale != Scale::Tiny && !w.path.exists() {
+            anyhow::bail!(
+                "{}; or pass --no-fid to run without FID and KID",
+                WeightsError::Missing { path: w.path }
+            );
+        }
+        Fid::Inception(args.inception.as_deref())
+    };
+    let r = reproduce::run(&protocol, &args.out, fid, target.as_ref())?;
     println!("{}", reproduce::markdown(&r));
     println!(
         "report: {}",

@@ -124,3 +124,34 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
         serde_json::from_slice(&std::fs::read(out.join("results/rows.json")).unwrap()).unwrap();
     assert_eq!(again["aggregate"], json["aggregate"]);
 }
+
+/// Without Inception weights, the two-hour scale stops before it records anything and says how
+/// to get them or how to go on without FID; `--no-fid` and `--inception` cannot both be given.
+#[test]
+fn the_cpu_scale_without_inception_weights_stops_at_once_and_says_what_to_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("repro");
+    let o = Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["reproduce", "--scale", "cpu", "--out"])
+        .arg(&out)
+        .env("XDG_CACHE_HOME", dir.path().join("empty-cache"))
+        .env_remove("RIG_INCEPTION_WEIGHTS")
+        .output()
+        .unwrap();
+    let text = common::output_text(&o);
+    assert!(!o.status.success(), "{text}");
+    let missing = dir.path().join("empty-cache/rig/inception-fid.safetensors");
+    assert!(text.contains(&missing.display().to_string()), "{text}");
+    assert!(text.contains("scripts/fetch-inception"), "{text}");
+    assert!(text.contains("--no-fid"), "{text}");
+    assert!(!out.join("data").exists(), "it recorded before stopping:\n{text}");
+
+    let o = Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["reproduce", "--no-fid", "--inception", "w.safetensors", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let text = common::output_text(&o);
+    assert!(!o.status.success(), "{text}");
+    assert!(text.contains("cannot be used with"), "{text}");
+}

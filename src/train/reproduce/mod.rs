@@ -269,16 +269,29 @@ pub struct Reproduction {
     pub phases_s: BTreeMap<String, f64>,
 }
 
+/// Whether phase 3 computes FID and KID, and with which Inception weights.
+#[derive(Debug, Clone, Copy)]
+pub enum Fid<'a> {
+    /// With the weights in this file (`None`: `$RIG_INCEPTION_WEIGHTS`, else the default file;
+    /// missing there, FID and KID are left out with a note: [`eval::load_inception`]).
+    Inception(Option<&'a Path>),
+    /// Not at all (`--no-fid`): the FID table keeps only the colour-statistics distance.
+    Skip,
+}
+
 /// Runs (or resumes) the protocol into `out`. See the module docs.
 pub fn run(
     protocol: &Protocol,
     out: &Path,
-    inception: Option<&Path>,
+    fid: Fid<'_>,
     target: Option<&RigConfig>,
 ) -> anyhow::Result<Reproduction> {
     let progress = std::io::stderr().is_terminal();
     std::fs::create_dir_all(out)?;
-    let net = eval::load_inception(inception, protocol.fid.batch)?;
+    let net = match fid {
+        Fid::Inception(file) => eval::load_inception(file, protocol.fid.batch)?,
+        Fid::Skip => Err("--no-fid was given".to_owned()),
+    };
     let mut phases = Phases::load(out);
     let split = protocol.split();
     let source_cfg = protocol.rig_config(RigConfig::sim_source());
