@@ -144,10 +144,19 @@ fn the_cpu_scale_without_inception_weights_stops_at_once_and_says_what_to_do() {
     assert!(text.contains(&missing.display().to_string()), "{text}");
     assert!(text.contains("scripts/fetch-inception"), "{text}");
     assert!(text.contains("--no-fid"), "{text}");
-    assert!(!out.join("data").exists(), "it recorded before stopping:\n{text}");
+    assert!(
+        !out.join("data").exists(),
+        "it recorded before stopping:\n{text}"
+    );
 
     let o = Command::new(env!("CARGO_BIN_EXE_rig"))
-        .args(["reproduce", "--no-fid", "--inception", "w.safetensors", "--out"])
+        .args([
+            "reproduce",
+            "--no-fid",
+            "--inception",
+            "w.safetensors",
+            "--out",
+        ])
         .arg(&out)
         .output()
         .unwrap();
