@@ -4,7 +4,6 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::train::inception::{self, WeightsError};
 use crate::train::reproduce::{self, Fid, Protocol, Scale};
 
 #[derive(Debug, Args)]
@@ -50,15 +49,6 @@ pub fn run(args: &ReproduceArgs) -> anyhow::Result<()> {
     let fid = if args.no_fid {
         Fid::Skip
     } else {
-        // A two-hour run should not find out at its third phase that it cannot say what the
-        // translation did.
-        let w = inception::weights_path(args.inception.as_deref());
-        if args.scale != Scale::Tiny && !w.path.exists() {
-            anyhow::bail!(
-                "{}; or pass --no-fid to run without FID and KID",
-                WeightsError::Missing { path: w.path }
-            );
-        }
         Fid::Inception(args.inception.as_deref())
     };
     let r = reproduce::run(&protocol, &args.out, fid, target.as_ref())?;

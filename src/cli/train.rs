@@ -146,7 +146,7 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
                 data::load_labelled(&a.source, &spec, progress)?.seen_only(&cfg.data.split);
             let target = data::load_unlabelled(&a.target, &spec, progress)?;
             // Before training: a damaged or missing explicitly named weights file stops here.
-            let net = eval::load_inception(a.inception.as_deref(), cfg.fid.batch)?;
+            let net = eval::load_inception(a.inception.as_deref(), cfg.fid.batch, false)?;
             let t = cyclegan::translate(&source, &target, &cfg.translate, &a.out, progress)?;
             let (source_images, translated_images) = (source.images(), t.set.images());
             let mut table = report::Table {

@@ -288,7 +288,7 @@ pub fn run(
     let progress = std::io::stderr().is_terminal();
     let plan = DemoPlan::new(quick);
     // Before an hour of work: a damaged or missing explicitly named weights file stops here.
-    let net = eval::load_inception(inception, plan.fid.batch)?;
+    let net = eval::load_inception(inception, plan.fid.batch, false)?;
     let t0 = std::time::Instant::now();
     let split = Split {
         unseen: plan.unseen.iter().map(|s| s.to_string()).collect(),

@@ -217,11 +217,13 @@ impl Default for FidConfig {
 }
 
 /// The Inception network for FID/KID, or why there is none. Weights at the default location
-/// that are missing make FID/KID unavailable (with a note in the table); weights named by a flag
-/// or `$RIG_INCEPTION_WEIGHTS` that are missing, and a damaged file anywhere, are an error.
+/// that are missing make FID/KID unavailable (with a note in the table) unless `required`;
+/// weights named by a flag or `$RIG_INCEPTION_WEIGHTS` that are missing, and a damaged file
+/// anywhere, are an error.
 pub fn load_inception(
     flag: Option<&Path>,
     batch: usize,
+    required: bool,
 ) -> anyhow::Result<Result<Inception, String>> {
     let w = inception::weights_path(flag);
     match Inception::load(&w.path, &super::force::device()) {
@@ -229,7 +231,9 @@ pub fn load_inception(
             net.batch = batch.max(1);
             Ok(Ok(net))
         }
-        Err(e @ WeightsError::Missing { .. }) if !w.explicit => Ok(Err(e.to_string())),
+        Err(e @ WeightsError::Missing { .. }) if !w.explicit && !required => {
+            Ok(Err(e.to_string()))
+        }
         Err(e) => Err(e.into()),
     }
 }

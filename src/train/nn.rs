@@ -22,7 +22,9 @@ use burn::tensor::ops::PadMode;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+mod conv;
 mod fast;
+pub use conv::conv2d;
 pub use fast::FastEncoder;
 
 /// Reflection padding of the two spatial axes of an NCHW tensor (the CycleGAN generator pads
@@ -80,9 +82,9 @@ impl ResBlock {
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let y = relu(
             self.norm1
-                .forward(self.conv1.forward(reflect_pad(x.clone(), 1))),
+                .forward(conv2d(&self.conv1, reflect_pad(x.clone(), 1))),
         );
-        let y = self.norm2.forward(self.conv2.forward(reflect_pad(y, 1)));
+        let y = self.norm2.forward(conv2d(&self.conv2, reflect_pad(y, 1)));
         x + y
     }
 }
@@ -145,9 +147,9 @@ impl Generator {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let mut x = relu(self.stem_norm.forward(self.stem.forward(reflect_pad(x, 3))));
+        let mut x = relu(self.stem_norm.forward(conv2d(&self.stem, reflect_pad(x, 3))));
         for d in &self.down {
-            x = relu(d.norm.forward(d.conv.forward(x)));
+            x = relu(d.norm.forward(conv2d(&d.conv, x)));
         }
         for b in &self.blocks {
             x = b.forward(x);
@@ -155,7 +157,7 @@ impl Generator {
         for u in &self.up {
             x = relu(u.norm.forward(u.conv.forward(x)));
         }
-        tanh(self.head.forward(reflect_pad(x, 3)))
+        tanh(conv2d(&self.head, reflect_pad(x, 3)))
     }
 }
 
@@ -199,13 +201,13 @@ impl Discriminator {
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let mut x = x;
         for l in &self.layers {
-            x = l.conv.forward(x);
+            x = conv2d(&l.conv, x);
             if let Some(n) = &l.norm {
                 x = n.forward(x);
             }
             x = leaky_relu(x, 0.2);
         }
-        self.head.forward(x)
+        conv2d(&self.head, x)
     }
 }
 
@@ -359,13 +361,13 @@ impl ResUnit {
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let shortcut = match (&self.short_conv, &self.short_bn) {
-            (Some(c), Some(b)) => b.forward(c.forward(x.clone())),
+            (Some(c), Some(b)) => b.forward(conv2d(c, x.clone())),
             _ => x.clone(),
         };
-        let mut y = relu(self.bn1.forward(self.conv1.forward(x)));
-        y = self.bn2.forward(self.conv2.forward(y));
+        let mut y = relu(self.bn1.forward(conv2d(&self.conv1, x)));
+        y = self.bn2.forward(conv2d(&self.conv2, y));
         if let (Some(c3), Some(b3)) = (&self.conv3, &self.bn3) {
-            y = b3.forward(c3.forward(relu(y)));
+            y = b3.forward(conv2d(c3, relu(y)));
         }
         relu(y + shortcut)
     }
@@ -423,7 +425,7 @@ impl Encoder {
 
     /// `[N, 3, H, W]` → `[N, embed]`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let mut x = relu(self.stem_bn.forward(self.stem.forward(x)));
+        let mut x = relu(self.stem_bn.forward(conv2d(&self.stem, x)));
         if let Some(p) = &self.pool {
             x = p.forward(x);
         }

@@ -60,8 +60,8 @@ pub use findings::{Aggregate, Verdict, aggregate, markdown, verdicts};
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size 2 CPU cores run in about two hours (133 min measured end to
-    /// end; about 120 projected from the phases measured since).
+    /// The whole split at a size meant for 2 CPU cores in about two hours (159 min measured
+    /// end to end on 2 cores before the training convolution of `nn::conv`; README, Commands).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
@@ -272,8 +272,9 @@ pub struct Reproduction {
 /// Whether phase 3 computes FID and KID, and with which Inception weights.
 #[derive(Debug, Clone, Copy)]
 pub enum Fid<'a> {
-    /// With the weights in this file (`None`: `$RIG_INCEPTION_WEIGHTS`, else the default file;
-    /// missing there, FID and KID are left out with a note: [`eval::load_inception`]).
+    /// With the weights in this file (`None`: `$RIG_INCEPTION_WEIGHTS`, else the default file).
+    /// Missing weights stop the run before it records anything, except at `--scale tiny`,
+    /// which leaves FID and KID out with a note ([`eval::load_inception`]).
     Inception(Option<&'a Path>),
     /// Not at all (`--no-fid`): the FID table keeps only the colour-statistics distance.
     Skip,
@@ -287,11 +288,16 @@ pub fn run(
     target: Option<&RigConfig>,
 ) -> anyhow::Result<Reproduction> {
     let progress = std::io::stderr().is_terminal();
-    std::fs::create_dir_all(out)?;
+    // Before anything is recorded: a two-hour run should not find out at its third phase that
+    // it cannot say what the translation did (only `tiny`, a smoke test, goes on without).
     let net = match fid {
-        Fid::Inception(file) => eval::load_inception(file, protocol.fid.batch)?,
+        Fid::Inception(file) => {
+            eval::load_inception(file, protocol.fid.batch, protocol.scale != Scale::Tiny)
+                .map_err(|e| anyhow::anyhow!("{e}; or pass --no-fid to run without FID and KID"))?
+        }
         Fid::Skip => Err("--no-fid was given".to_owned()),
     };
+    std::fs::create_dir_all(out)?;
     let mut phases = Phases::load(out);
     let split = protocol.split();
     let source_cfg = protocol.rig_config(RigConfig::sim_source());

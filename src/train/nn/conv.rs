@@ -1,0 +1,614 @@
+//! The convolution the networks train with on the CPU: forward, input gradient and weight
+//! gradient on our own kernels, reached through a burn backend extension.
+//!
+//! burn's flex backend has a convolution forward, but its autodiff takes the two gradients
+//! from burn's generic formulas: the input gradient as a transposed convolution and the weight
+//! gradient as a convolution with the batch as channels, each with its own layout copies. A
+//! profile of the ResNet-18 training step had more time in those copies than in the matrix
+//! products (README, Benchmarks). Here each image is one product on the classic unrolled
+//! layout (Chellapilla, Puri and Simard 2006, "High performance convolutional neural networks
+//! for document processing"), all NCHW, no copies beside the unrolling itself:
+//!
+//! - **forward:** `col = im2col(x_n)`, `[k·k·c_in, pixels]`; `y_n = W · col + b`, with `W` the
+//!   weights as `[c_out, c_in·k·k]` (their own layout);
+//! - **weight gradient:** `dW += dy_n · colᵀ`, summed over the images of a worker and then over
+//!   workers; the bias gradient is the sum of `dy` over images and pixels;
+//! - **input gradient:** `dcol = Wᵀ · dy_n`, folded back onto the image (`col2im`, the adjoint
+//!   of the unrolling: every tap adds into the pixel it read).
+//!
+//! A 1 × 1 convolution of stride 1 without padding uses the image itself as `col`. Images are
+//! shared out over the rayon pool (one product per image on one thread); a batch smaller than
+//! the pool runs its products multi-threaded instead. Transposes are strides handed to `gemm`.
+//!
+//! [`conv2d`] takes this path for f32 tensors on the flex device, with or without autodiff, for
+//! any convolution with a bias, square kernel and stride, symmetric zero padding, no dilation
+//! and one group; anything else (and every GPU device) goes to burn's own `Conv2d::forward`.
+//! The tests check values and all three gradients against burn's on shapes that include padding
+//! wider than the input and strides that skip pixels.
+
+use std::borrow::Cow;
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::flex::FlexTensor;
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, Flex, backend_extension};
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::Conv2d;
+use burn::tensor::{DType, Tensor, TensorData};
+use gemm::Parallelism;
+use rayon::prelude::*;
+
+/// The convolution as a backend operation (NCHW, bias, square kernel `k` from the weight's
+/// shape, `stride` and zero padding `pad` on both axes).
+#[backend_extension(Flex, Autodiff)]
+pub trait TrainConv: Backend {
+    fn train_conv2d(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        stride: usize,
+        pad: usize,
+    ) -> FloatTensor<Self>;
+}
+
+impl TrainConv for Flex {
+    fn train_conv2d(
+        x: FlexTensor,
+        weight: FlexTensor,
+        bias: FlexTensor,
+        stride: usize,
+        pad: usize,
+    ) -> FlexTensor {
+        let g = Geom::of(&x, &weight, stride, pad);
+        let y = forward(&g, &dense(&x), &dense(&weight), Some(&dense(&bias)));
+        flex(y, [g.n, g.o, g.ho, g.wo])
+    }
+}
+
+/// The backward step: the state is the forward's input and weight (cheap `Arc` clones).
+#[derive(Debug)]
+struct ConvBackward;
+
+impl Backward<Flex, 3> for ConvBackward {
+    type State = (FlexTensor, FlexTensor, usize, usize);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node_x, node_w, node_b] = ops.parents;
+        let dy = grads.consume::<Flex>(&ops.node);
+        let (x, weight, stride, pad) = ops.state;
+        let g = Geom::of(&x, &weight, stride, pad);
+        let want = Want {
+            dx: node_x.is_some(),
+            dw: node_w.is_some(),
+            db: node_b.is_some(),
+        };
+        let d = backward(&g, &dense(&x), &dense(&weight), &dense(&dy), want);
+        if let (Some(node), Some(dx)) = (node_x, d.dx) {
+            grads.register::<Flex>(node.id, flex(dx, [g.n, g.c, g.h, g.w]));
+        }
+        if let (Some(node), Some(dw)) = (node_w, d.dw) {
+            grads.register::<Flex>(node.id, flex(dw, [g.o, g.c, g.k, g.k]));
+        }
+        if let (Some(node), Some(db)) = (node_b, d.db) {
+            grads.register::<Flex>(node.id, flex(db, [g.o]));
+        }
+    }
+}
+
+impl<C: CheckpointStrategy> TrainConv for Autodiff<Flex, C> {
+    fn train_conv2d(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        stride: usize,
+        pad: usize,
+    ) -> FloatTensor<Self> {
+        let y = Flex::train_conv2d(
+            x.primitive().clone(),
+            weight.primitive().clone(),
+            bias.primitive().clone(),
+            stride,
+            pad,
+        );
+        match ConvBackward
+            .prepare::<C>([x.node(), weight.node(), bias.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish(
+                (x.into_primitive(), weight.into_primitive(), stride, pad),
+                y,
+            ),
+            OpsKind::UnTracked(prep) => prep.finish(y),
+        }
+    }
+}
+
+/// `conv.forward(x)`: on this module's kernels when they cover the layer and the device (module
+/// docs), else burn's.
+pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let Some((stride, pad, bias)) = covered(conv, &x) else {
+        return conv.forward(x);
+    };
+    let y = <Dispatch as TrainConv>::train_conv2d(
+        x.into_dispatch(),
+        conv.weight.val().into_dispatch(),
+        bias.into_dispatch(),
+        stride,
+        pad,
+    );
+    Tensor::from_dispatch(y)
+}
+
+/// Stride, padding and bias of a layer this module computes, on a device it runs on.
+fn covered(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize, Tensor<1>)> {
+    let [_, _, kh, kw] = conv.weight.val().dims();
+    let pad = match conv.padding {
+        PaddingConfig2d::Valid => 0,
+        PaddingConfig2d::Explicit(t, l, b, r) if t == l && l == b && b == r => t,
+        _ => return None,
+    };
+    let [_, _, h, w] = x.dims();
+    let plain = conv.groups == 1
+        && conv.dilation == [1, 1]
+        && kh == kw
+        && conv.stride[0] == conv.stride[1]
+        && conv.stride[0] > 0
+        && h + 2 * pad >= kh
+        && w + 2 * pad >= kw;
+    let on_flex = matches!(x.device().inner().as_dispatch(), DispatchDevice::Flex(_));
+    if !plain || !on_flex || x.dtype() != DType::F32 {
+        return None;
+    }
+    let bias = conv.bias.as_ref()?.val();
+    Some((conv.stride[0], pad, bias))
+}
+
+fn dense(t: &FlexTensor) -> Cow<'_, [f32]> {
+    match t.as_slice::<f32>() {
+        Some(s) => Cow::Borrowed(s),
+        None => Cow::Owned(t.to_contiguous().storage::<f32>().to_vec()),
+    }
+}
+
+fn flex<const D: usize>(v: Vec<f32>, shape: [usize; D]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(v, shape))
+}
+
+/// The sizes of one convolution.
+#[derive(Debug, Clone, Copy)]
+struct Geom {
+    n: usize,
+    c: usize,
+    h: usize,
+    w: usize,
+    o: usize,
+    k: usize,
+    s: usize,
+    p: usize,
+    ho: usize,
+    wo: usize,
+}
+
+impl Geom {
+    fn of(x: &FlexTensor, weight: &FlexTensor, s: usize, p: usize) -> Self {
+        let [n, c, h, w]: [usize; 4] = x.layout().shape().dims();
+        let [o, ci, k, kw]: [usize; 4] = weight.layout().shape().dims();
+        assert!(
+            ci == c && kw == k && s > 0 && h + 2 * p >= k && w + 2 * p >= k,
+            "train_conv2d: input {:?} and weight {:?} (stride {s}, padding {p}) do not fit",
+            [n, c, h, w],
+            [o, ci, k, kw]
+        );
+        Self {
+            n,
+            c,
+            h,
+            w,
+            o,
+            k,
+            s,
+            p,
+            ho: (h + 2 * p - k) / s + 1,
+            wo: (w + 2 * p - k) / s + 1,
+        }
+    }
+
+    fn pixels(&self) -> usize {
+        self.ho * self.wo
+    }
+
+    /// Rows of the unrolled input, `c_in·k·k`.
+    fn taps(&self) -> usize {
+        self.c * self.k * self.k
+    }
+
+    fn image(&self) -> usize {
+        self.c * self.h * self.w
+    }
+
+    /// The 1 × 1, stride 1, unpadded case: the image is its own unrolling.
+    fn direct(&self) -> bool {
+        self.k == 1 && self.s == 1 && self.p == 0
+    }
+}
+
+/// Output positions `lo..hi` along one axis whose input position `o·s + kx − p` lies inside
+/// `0..len` (`out` positions in all).
+fn inside(kx: usize, s: usize, p: usize, len: usize, out: usize) -> (usize, usize) {
+    let lo = if p > kx { (p - kx).div_ceil(s) } else { 0 };
+    let hi = if len + p > kx {
+        ((len - 1 + p - kx) / s + 1).min(out)
+    } else {
+        0
+    };
+    (lo.min(hi), hi)
+}
+
+/// `col[(ci, ky, kx), (oy, ox)] = x[ci, oy·s + ky − p, ox·s + kx − p]`, zero outside the image.
+fn im2col(g: &Geom, x: &[f32], col: &mut [f32]) {
+    let (k, s, p, wo) = (g.k, g.s, g.p, g.wo);
+    let pix = g.pixels();
+    for ci in 0..g.c {
+        let plane = &x[ci * g.h * g.w..][..g.h * g.w];
+        for ky in 0..k {
+            let (ylo, yhi) = inside(ky, s, p, g.h, g.ho);
+            for kx in 0..k {
+                let (xlo, xhi) = inside(kx, s, p, g.w, wo);
+                let row = &mut col[((ci * k + ky) * k + kx) * pix..][..pix];
+                row[..ylo * wo].fill(0.0);
+                row[yhi * wo..].fill(0.0);
+                for oy in ylo..yhi {
+                    let dst = &mut row[oy * wo..][..wo];
+                    dst[..xlo].fill(0.0);
+                    dst[xhi..].fill(0.0);
+                    if xhi == xlo {
+                        continue;
+                    }
+                    let src = &plane[(oy * s + ky - p) * g.w..][..g.w];
+                    if s == 1 {
+                        let from = xlo + kx - p;
+                        dst[xlo..xhi].copy_from_slice(&src[from..from + xhi - xlo]);
+                    } else {
+                        for (ox, d) in dst[xlo..xhi].iter_mut().enumerate() {
+                            *d = src[(xlo + ox) * s + kx - p];
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The adjoint of [`im2col`]: every entry of `col` is added into the pixel it was read from.
+fn col2im(g: &Geom, col: &[f32], x: &mut [f32]) {
+    let (k, s, p, wo) = (g.k, g.s, g.p, g.wo);
+    let pix = g.pixels();
+    for ci in 0..g.c {
+        let plane = &mut x[ci * g.h * g.w..][..g.h * g.w];
+        for ky in 0..k {
+            let (ylo, yhi) = inside(ky, s, p, g.h, g.ho);
+            for kx in 0..k {
+                let (xlo, xhi) = inside(kx, s, p, g.w, wo);
+                if xhi == xlo {
+                    continue;
+                }
+                let row = &col[((ci * k + ky) * k + kx) * pix..][..pix];
+                for oy in ylo..yhi {
+                    let src = &row[oy * wo + xlo..oy * wo + xhi];
+                    let dst = &mut plane[(oy * s + ky - p) * g.w..][..g.w];
+                    if s == 1 {
+                        let from = xlo + kx - p;
+                        for (d, v) in dst[from..from + src.len()].iter_mut().zip(src) {
+                            *d += v;
+                        }
+                    } else {
+                        for (ox, v) in src.iter().enumerate() {
+                            dst[(xlo + ox) * s + kx - p] += v;
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A row-major matrix as `gemm` takes it: pointer, column stride, row stride.
+#[derive(Clone, Copy)]
+struct Mat(*const f32, isize, isize);
+
+impl Mat {
+    fn rows(v: &[f32], cols: usize) -> Self {
+        Self(v.as_ptr(), 1, cols as isize)
+    }
+
+    /// The transpose of the row-major `[rows, cols]` matrix in `v`.
+    fn transposed(v: &[f32], cols: usize) -> Self {
+        Self(v.as_ptr(), cols as isize, 1)
+    }
+}
+
+/// `dst = (accumulate ? dst : 0) + lhs · rhs`, `dst` row-major `[m, n]`.
+fn product(
+    dst: &mut [f32],
+    [m, n, k]: [usize; 3],
+    accumulate: bool,
+    lhs: Mat,
+    rhs: Mat,
+    par: Parallelism,
+) {
+    assert!(dst.len() >= m * n);
+    // SAFETY: `dst` holds `m × n` floats (asserted); every caller builds `lhs` (`m × k`) and
+    // `rhs` (`k × n`) from slices of at least that many elements with these strides, and none
+    // of them aliases `dst`.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            accumulate,
+            lhs.0,
+            lhs.1,
+            lhs.2,
+            rhs.0,
+            rhs.1,
+            rhs.2,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            par,
+        );
+    }
+}
+
+/// Work shared out by image when the batch fills the pool, else each product multi-threaded.
+fn split(n: usize) -> (usize, Parallelism) {
+    let threads = rayon::current_num_threads().max(1);
+    if n >= threads {
+        (n.div_ceil(threads), Parallelism::None)
+    } else {
+        (n.max(1), Parallelism::Rayon(threads))
+    }
+}
+
+fn forward(g: &Geom, x: &[f32], w: &[f32], b: Option<&[f32]>) -> Vec<f32> {
+    let (pix, taps) = (g.pixels(), g.taps());
+    let mut y = vec![0.0f32; g.n * g.o * pix];
+    let (chunk, par) = split(g.n);
+    let per_image = |col: &mut Vec<f32>, i: usize, y_n: &mut [f32]| {
+        if let Some(b) = b {
+            for (row, &bo) in y_n.chunks_mut(pix).zip(b) {
+                row.fill(bo);
+            }
+        }
+        let x_n = &x[i * g.image()..][..g.image()];
+        let rhs = if g.direct() {
+            x_n
+        } else {
+            col.resize(taps * pix, 0.0);
+            im2col(g, x_n, col);
+            &col[..]
+        };
+        product(
+            y_n,
+            [g.o, pix, taps],
+            b.is_some(),
+            Mat::rows(w, taps),
+            Mat::rows(rhs, pix),
+            par,
+        );
+    };
+    y.par_chunks_mut(chunk * g.o * pix)
+        .enumerate()
+        .for_each(|(c, ys)| {
+            let mut col = Vec::new();
+            for (j, y_n) in ys.chunks_mut(g.o * pix).enumerate() {
+                per_image(&mut col, c * chunk + j, y_n);
+            }
+        });
+    y
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Want {
+    dx: bool,
+    dw: bool,
+    db: bool,
+}
+
+struct Grads {
+    dx: Option<Vec<f32>>,
+    dw: Option<Vec<f32>>,
+    db: Option<Vec<f32>>,
+}
+
+fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
+    let (pix, taps) = (g.pixels(), g.taps());
+    let (chunk, par) = split(g.n);
+    // One worker's images: `first..first + count`, its input-gradient slice if wanted; returns
+    // its partial weight and bias gradients.
+    let work = |first: usize, count: usize, mut dx: Option<&mut [f32]>| {
+        let mut dw = vec![0.0f32; if want.dw { g.o * taps } else { 0 }];
+        let mut db = vec![0.0f32; if want.db { g.o } else { 0 }];
+        let mut col = Vec::new();
+        let mut dcol = Vec::new();
+        for j in 0..count {
+            let i = first + j;
+            let dy_n = &dy[i * g.o * pix..][..g.o * pix];
+            if want.db {
+                for (acc, row) in db.iter_mut().zip(dy_n.chunks(pix)) {
+                    *acc += row.iter().sum::<f32>();
+                }
+            }
+            if want.dw {
+                let x_n = &x[i * g.image()..][..g.image()];
+                let cols = if g.direct() {
+                    x_n
+                } else {
+                    col.resize(taps * pix, 0.0);
+                    im2col(g, x_n, &mut col);
+                    &col[..]
+                };
+                product(
+                    &mut dw,
+                    [g.o, taps, pix],
+                    j > 0,
+                    Mat::rows(dy_n, pix),
+                    Mat::transposed(cols, pix),
+                    par,
+                );
+            }
+            if let Some(dx) = dx.as_deref_mut() {
+                let dx_n = &mut dx[j * g.image()..][..g.image()];
+                let wt = Mat::transposed(w, taps);
+                if g.direct() {
+                    product(dx_n, [g.c, pix, g.o], false, wt, Mat::rows(dy_n, pix), par);
+                } else {
+                    dcol.resize(taps * pix, 0.0);
+                    product(&mut dcol, [taps, pix, g.o], false, wt, Mat::rows(dy_n, pix), par);
+                    col2im(g, &dcol, dx_n);
+                }
+            }
+        }
+        (dw, db)
+    };
+    let mut dx = want.dx.then(|| vec![0.0f32; g.n * g.image()]);
+    let parts: Vec<(Vec<f32>, Vec<f32>)> = match dx.as_mut() {
+        Some(dx) => dx
+            .par_chunks_mut(chunk * g.image())
+            .enumerate()
+            .map(|(c, dxs)| work(c * chunk, dxs.len() / g.image(), Some(dxs)))
+            .collect(),
+        None => (0..g.n.div_ceil(chunk))
+            .into_par_iter()
+            .map(|c| work(c * chunk, chunk.min(g.n - c * chunk), None))
+            .collect(),
+    };
+    let mut parts = parts.into_iter();
+    let (mut dw, mut db) = parts.next().unwrap_or_default();
+    for (pw, pb) in parts {
+        for (a, v) in dw.iter_mut().zip(&pw) {
+            *a += v;
+        }
+        for (a, v) in db.iter_mut().zip(&pb) {
+            *a += v;
+        }
+    }
+    if g.n == 0 {
+        dw = vec![0.0; if want.dw { g.o * taps } else { 0 }];
+        db = vec![0.0; if want.db { g.o } else { 0 }];
+    }
+    Grads {
+        dx,
+        dw: want.dw.then_some(dw),
+        db: want.db.then_some(db),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::conv::Conv2dConfig;
+    use burn::tensor::{Device, Distribution};
+
+    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
+    }
+
+    /// `|a − b| ≤ tol · max|b|` elementwise: f32 sums of at most a few hundred products of
+    /// O(1) terms, so a relative 1e-4 of the largest entry is ample for rounding and still
+    /// catches a misplaced tap (which moves whole entries).
+    fn close(what: &str, a: &[f32], b: &[f32]) {
+        assert_eq!(a.len(), b.len(), "{what}: lengths");
+        let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!(
+                (x - y).abs() <= 1e-4 * scale,
+                "{what}[{i}]: {x} against burn's {y} (largest {scale})"
+            );
+        }
+    }
+
+    /// Our convolution against burn's `Conv2d::forward`: values, and the gradients of
+    /// `Σ y ⊙ r` for a random `r` with respect to the input, weight and bias.
+    fn check(n: usize, c: usize, o: usize, [h, w]: [usize; 2], k: usize, s: usize, p: usize) {
+        let dev = Device::flex().autodiff();
+        let conv: Conv2d = Conv2dConfig::new([c, o], [k, k])
+            .with_stride([s, s])
+            .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
+            .init(&dev);
+        let x = Tensor::<4>::random([n, c, h, w], Distribution::Normal(0.0, 1.0), &dev);
+        let what = format!("n {n} c {c} o {o} {h}x{w} k {k} s {s} p {p}");
+        assert!(covered(&conv, &x).is_some(), "{what}: not covered");
+        let mut got = Vec::new();
+        let mut r = None;
+        for ours in [true, false] {
+            let xi = x.clone().detach().require_grad();
+            let y = if ours {
+                conv2d(&conv, xi.clone())
+            } else {
+                conv.forward(xi.clone())
+            };
+            let r = r
+                .get_or_insert_with(|| Tensor::random(y.dims(), Distribution::Normal(0.0, 1.0), &dev))
+                .clone();
+            let grads = (y.clone() * r).sum().backward();
+            let gx = xi.grad(&grads).unwrap();
+            let gw = conv.weight.val().grad(&grads).unwrap();
+            let gb = conv.bias.as_ref().unwrap().val().grad(&grads).unwrap();
+            got.push([values(y), values(gx), values(gw), values(gb)]);
+        }
+        for (i, part) in ["y", "dx", "dw", "db"].iter().enumerate() {
+            close(&format!("{what}: {part}"), &got[0][i], &got[1][i]);
+        }
+    }
+
+    #[test]
+    fn the_training_convolution_matches_burns_values_and_gradients() {
+        // The encoder's and the generator's layer kinds: 3 × 3 same, strided, 1 × 1 and its
+        // strided shortcut, the 7 × 7 stem, and the discriminator's 4 × 4 stride 2.
+        check(3, 4, 5, [9, 7], 3, 1, 1);
+        check(3, 4, 6, [9, 7], 3, 2, 1);
+        check(3, 8, 6, [6, 5], 1, 1, 0);
+        check(3, 8, 6, [6, 5], 1, 2, 0);
+        check(2, 3, 4, [13, 11], 7, 2, 3);
+        check(2, 3, 4, [12, 10], 4, 2, 1);
+        // One image, fewer than the pool's threads: the products run multi-threaded instead.
+        check(1, 4, 5, [9, 7], 3, 1, 1);
+    }
+
+    #[test]
+    fn padding_wider_than_the_image_and_strides_that_skip_taps_stay_exact() {
+        // A 2 × 3 image under a 5 × 5 kernel with padding 3: some taps see only padding, some
+        // rows of the unrolling are all zero, and stride 3 skips input columns entirely.
+        check(2, 2, 3, [2, 3], 5, 1, 3);
+        check(2, 2, 3, [2, 3], 5, 3, 3);
+        check(2, 2, 3, [1, 1], 3, 1, 1);
+        // Input exactly the kernel's size, no padding: one output pixel.
+        check(2, 3, 2, [3, 3], 3, 1, 0);
+    }
+
+    #[test]
+    fn layers_the_kernels_do_not_cover_fall_back_to_burn() {
+        let dev = Device::flex();
+        let x = Tensor::<4>::zeros([1, 2, 6, 6], &dev);
+        let dilated: Conv2d = Conv2dConfig::new([2, 2], [3, 3]).with_dilation([2, 2]).init(&dev);
+        assert!(covered(&dilated, &x).is_none());
+        let no_bias: Conv2d = Conv2dConfig::new([2, 2], [3, 3]).with_bias(false).init(&dev);
+        assert!(covered(&no_bias, &x).is_none());
+        let lopsided: Conv2d = Conv2dConfig::new([2, 2], [3, 3])
+            .with_padding(PaddingConfig2d::Explicit(1, 0, 1, 0))
+            .init(&dev);
+        assert!(covered(&lopsided, &x).is_none());
+        // Still the same function through burn's path.
+        assert_eq!(conv2d(&no_bias, x.clone()).dims(), [1, 2, 4, 4]);
+    }
+}
