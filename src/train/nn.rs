@@ -24,7 +24,9 @@ use serde::{Deserialize, Serialize};
 
 mod conv;
 mod fast;
+mod norm;
 pub use conv::conv2d;
+pub use norm::batch_norm;
 pub use fast::FastEncoder;
 
 /// Reflection padding of the two spatial axes of an NCHW tensor (the CycleGAN generator pads
@@ -361,13 +363,13 @@ impl ResUnit {
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let shortcut = match (&self.short_conv, &self.short_bn) {
-            (Some(c), Some(b)) => b.forward(conv2d(c, x.clone())),
+            (Some(c), Some(b)) => batch_norm(b, conv2d(c, x.clone())),
             _ => x.clone(),
         };
-        let mut y = relu(self.bn1.forward(conv2d(&self.conv1, x)));
-        y = self.bn2.forward(conv2d(&self.conv2, y));
+        let mut y = relu(batch_norm(&self.bn1, conv2d(&self.conv1, x)));
+        y = batch_norm(&self.bn2, conv2d(&self.conv2, y));
         if let (Some(c3), Some(b3)) = (&self.conv3, &self.bn3) {
-            y = b3.forward(conv2d(c3, relu(y)));
+            y = batch_norm(b3, conv2d(c3, relu(y)));
         }
         relu(y + shortcut)
     }
@@ -425,7 +427,7 @@ impl Encoder {
 
     /// `[N, 3, H, W]` → `[N, embed]`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let mut x = relu(self.stem_bn.forward(conv2d(&self.stem, x)));
+        let mut x = relu(batch_norm(&self.stem_bn, conv2d(&self.stem, x)));
         if let Some(p) = &self.pool {
             x = p.forward(x);
         }

@@ -167,14 +167,14 @@ fn covered(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize, Tensor<1>)> {
     Some((conv.stride[0], pad, bias))
 }
 
-fn dense(t: &FlexTensor) -> Cow<'_, [f32]> {
+pub(super) fn dense(t: &FlexTensor) -> Cow<'_, [f32]> {
     match t.as_slice::<f32>() {
         Some(s) => Cow::Borrowed(s),
         None => Cow::Owned(t.to_contiguous().storage::<f32>().to_vec()),
     }
 }
 
-fn flex<const D: usize>(v: Vec<f32>, shape: [usize; D]) -> FlexTensor {
+pub(super) fn flex<const D: usize>(v: Vec<f32>, shape: [usize; D]) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(v, shape))
 }
 
