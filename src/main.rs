@@ -6,6 +6,7 @@ use clap::Parser;
 use tracing_subscriber::EnvFilter;
 
 fn main() -> ExitCode {
+    rig::train::keep_freed_memory();
     // Usage errors (and --help / --version) exit here, with status 2 for errors.
     let cli = rig::cli::Cli::parse();
 

@@ -47,3 +47,30 @@ pub fn progress_bar(show: bool, len: u64, what: &str) -> indicatif::ProgressBar 
     );
     bar
 }
+
+/// Lets the C allocator keep and reuse the memory of freed tensors instead of handing every
+/// large one back to the kernel and faulting in fresh zeroed pages for the next: blocks up to
+/// 32 MiB (glibc's ceiling for this setting; a training step's activations at 64 × 48 are up to
+/// 13 MB) come from the heap, and up to 512 MiB of free heap stays mapped. glibc's defaults
+/// (`mallopt(3)`) serve such blocks with `mmap` and unmap them on free, so each step paid its
+/// page faults again: keeping them made the ResNet-18 training step about 17 % faster on 2 cores
+/// with the same peak memory (`rig bench train --speed --size 64x48`). Skipped when the user set
+/// either through the environment (`MALLOC_MMAP_THRESHOLD_`, `MALLOC_TRIM_THRESHOLD_`,
+/// `GLIBC_TUNABLES`), and a no-op off glibc.
+pub fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        let set_by_user = ["MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES"]
+            .iter()
+            .any(|v| std::env::var_os(v).is_some());
+        if !set_by_user {
+            use nix::libc::{M_MMAP_THRESHOLD, M_TRIM_THRESHOLD, mallopt};
+            // SAFETY: `mallopt` only changes two allocator parameters; it is called before any
+            // other thread exists (the first thing `main` does) and the values are in range.
+            unsafe {
+                mallopt(M_MMAP_THRESHOLD, 32 << 20);
+                mallopt(M_TRIM_THRESHOLD, 512 << 20);
+            }
+        }
+    }
+}
