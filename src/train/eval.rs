@@ -231,9 +231,7 @@ pub fn load_inception(
             net.batch = batch.max(1);
             Ok(Ok(net))
         }
-        Err(e @ WeightsError::Missing { .. }) if !w.explicit && !required => {
-            Ok(Err(e.to_string()))
-        }
+        Err(e @ WeightsError::Missing { .. }) if !w.explicit && !required => Ok(Err(e.to_string())),
         Err(e) => Err(e.into()),
     }
 }

@@ -60,9 +60,13 @@ pub fn progress_bar(show: bool, len: u64, what: &str) -> indicatif::ProgressBar 
 pub fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
-        let set_by_user = ["MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES"]
-            .iter()
-            .any(|v| std::env::var_os(v).is_some());
+        let set_by_user = [
+            "MALLOC_MMAP_THRESHOLD_",
+            "MALLOC_TRIM_THRESHOLD_",
+            "GLIBC_TUNABLES",
+        ]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some());
         if !set_by_user {
             use nix::libc::{M_MMAP_THRESHOLD, M_TRIM_THRESHOLD, mallopt};
             // SAFETY: `mallopt` only changes two allocator parameters; it is called before any

@@ -26,8 +26,8 @@ mod conv;
 mod fast;
 mod norm;
 pub use conv::conv2d;
-pub use norm::batch_norm;
 pub use fast::FastEncoder;
+pub use norm::batch_norm;
 
 /// Reflection padding of the two spatial axes of an NCHW tensor (the CycleGAN generator pads
 /// this way so that borders carry image content, not zeros).
@@ -149,7 +149,10 @@ impl Generator {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let mut x = relu(self.stem_norm.forward(conv2d(&self.stem, reflect_pad(x, 3))));
+        let mut x = relu(
+            self.stem_norm
+                .forward(conv2d(&self.stem, reflect_pad(x, 3))),
+        );
         for d in &self.down {
             x = relu(d.norm.forward(conv2d(&d.conv, x)));
         }

@@ -473,7 +473,14 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
                     product(dx_n, [g.c, pix, g.o], false, wt, Mat::rows(dy_n, pix), par);
                 } else {
                     dcol.resize(taps * pix, 0.0);
-                    product(&mut dcol, [taps, pix, g.o], false, wt, Mat::rows(dy_n, pix), par);
+                    product(
+                        &mut dcol,
+                        [taps, pix, g.o],
+                        false,
+                        wt,
+                        Mat::rows(dy_n, pix),
+                        par,
+                    );
                     col2im(g, &dcol, dx_n);
                 }
             }
@@ -558,7 +565,9 @@ mod tests {
                 conv.forward(xi.clone())
             };
             let r = r
-                .get_or_insert_with(|| Tensor::random(y.dims(), Distribution::Normal(0.0, 1.0), &dev))
+                .get_or_insert_with(|| {
+                    Tensor::random(y.dims(), Distribution::Normal(0.0, 1.0), &dev)
+                })
                 .clone();
             let grads = (y.clone() * r).sum().backward();
             let gx = xi.grad(&grads).unwrap();
@@ -600,9 +609,13 @@ mod tests {
     fn layers_the_kernels_do_not_cover_fall_back_to_burn() {
         let dev = Device::flex();
         let x = Tensor::<4>::zeros([1, 2, 6, 6], &dev);
-        let dilated: Conv2d = Conv2dConfig::new([2, 2], [3, 3]).with_dilation([2, 2]).init(&dev);
+        let dilated: Conv2d = Conv2dConfig::new([2, 2], [3, 3])
+            .with_dilation([2, 2])
+            .init(&dev);
         assert!(covered(&dilated, &x).is_none());
-        let no_bias: Conv2d = Conv2dConfig::new([2, 2], [3, 3]).with_bias(false).init(&dev);
+        let no_bias: Conv2d = Conv2dConfig::new([2, 2], [3, 3])
+            .with_bias(false)
+            .init(&dev);
         assert!(covered(&no_bias, &x).is_none());
         let lopsided: Conv2d = Conv2dConfig::new([2, 2], [3, 3])
             .with_padding(PaddingConfig2d::Explicit(1, 0, 1, 0))

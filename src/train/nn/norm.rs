@@ -62,7 +62,15 @@ impl TrainNorm for Flex {
         let shape = x.layout().shape().clone();
         let g = Planes::of(&x);
         let (mean, var) = stats(&g, &dense(&x));
-        let y = normalise(&g, &dense(&x), &dense(&gamma), &dense(&beta), &mean, &var, epsilon);
+        let y = normalise(
+            &g,
+            &dense(&x),
+            &dense(&gamma),
+            &dense(&beta),
+            &mean,
+            &var,
+            epsilon,
+        );
         NormOut {
             output: FlexTensor::from_data(burn::tensor::TensorData::new(y, shape)),
             mean: flex(mean, [g.c]),
@@ -82,7 +90,10 @@ struct Planes {
 impl Planes {
     fn of(x: &FlexTensor) -> Self {
         let dims = x.layout().shape().as_slice().to_vec();
-        assert!(dims.len() >= 2, "train_batch_norm: input {dims:?} has no channel axis");
+        assert!(
+            dims.len() >= 2,
+            "train_batch_norm: input {dims:?} has no channel axis"
+        );
         Self {
             n: dims[0],
             c: dims[1],
@@ -101,7 +112,9 @@ fn stats(g: &Planes, x: &[f32]) -> (Vec<f32>, Vec<f32>) {
         .into_par_iter()
         .map(|c| {
             let planes = || (0..g.n).map(move |n| &x[(n * g.c + c) * g.len..][..g.len]);
-            let sum: f64 = planes().map(|p| p.iter().map(|&v| v as f64).sum::<f64>()).sum();
+            let sum: f64 = planes()
+                .map(|p| p.iter().map(|&v| v as f64).sum::<f64>())
+                .sum();
             let mean = sum / g.count();
             let sq: f64 = planes()
                 .map(|p| p.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>())
@@ -153,7 +166,10 @@ impl Backward<Flex, 3> for NormBackward {
         let g = Planes::of(&x);
         let shape = x.layout().shape().clone();
         let (x, dy, gamma) = (dense(&x), dense(&dy), dense(&gamma));
-        let inv: Vec<f32> = var.iter().map(|&v| 1.0 / ((v as f64 + eps).sqrt() as f32)).collect();
+        let inv: Vec<f32> = var
+            .iter()
+            .map(|&v| 1.0 / ((v as f64 + eps).sqrt() as f32))
+            .collect();
         // Per channel Σ dy and Σ dy·x̂.
         let sums: Vec<(f64, f64)> = (0..g.c)
             .into_par_iter()
@@ -173,18 +189,16 @@ impl Backward<Flex, 3> for NormBackward {
             let m = g.count();
             let mut dx = vec![0.0f32; x.len()];
             if g.len > 0 {
-                dx.par_chunks_mut(g.len)
-                    .enumerate()
-                    .for_each(|(i, dxp)| {
-                        let c = i % g.c;
-                        let at = i * g.len;
-                        let k = gamma[c] * inv[c];
-                        let mdb = (sums[c].0 / m) as f32;
-                        let mdg = (sums[c].1 / m) as f32;
-                        for ((o, &d), &v) in dxp.iter_mut().zip(&dy[at..]).zip(&x[at..]) {
-                            *o = k * (d - mdb - (v - mean[c]) * inv[c] * mdg);
-                        }
-                    });
+                dx.par_chunks_mut(g.len).enumerate().for_each(|(i, dxp)| {
+                    let c = i % g.c;
+                    let at = i * g.len;
+                    let k = gamma[c] * inv[c];
+                    let mdb = (sums[c].0 / m) as f32;
+                    let mdg = (sums[c].1 / m) as f32;
+                    for ((o, &d), &v) in dxp.iter_mut().zip(&dy[at..]).zip(&x[at..]) {
+                        *o = k * (d - mdb - (v - mean[c]) * inv[c] * mdg);
+                    }
+                });
             }
             grads.register::<Flex>(
                 node.id,
@@ -227,7 +241,13 @@ impl<C: CheckpointStrategy> TrainNorm for Autodiff<Flex, C> {
             .stateful()
         {
             OpsKind::Tracked(prep) => prep.finish(
-                (x.into_primitive(), gamma.into_primitive(), mean, var, epsilon),
+                (
+                    x.into_primitive(),
+                    gamma.into_primitive(),
+                    mean,
+                    var,
+                    epsilon,
+                ),
                 out.output,
             ),
             OpsKind::UnTracked(prep) => prep.finish(out.output),
@@ -384,7 +404,10 @@ mod tests {
             // (3.05e-5) over the scale √(s² + ε) ≈ 0.0105 leaves at most 0.0029 of offset.
             assert!(mean.abs() < 3e-3, "channel {c}: mean {mean}");
             let want = s2 / (s2 + 1e-5);
-            assert!((var - want).abs() < 1e-4, "channel {c}: variance {var}, want {want}");
+            assert!(
+                (var - want).abs() < 1e-4,
+                "channel {c}: variance {var}, want {want}"
+            );
         }
     }
 }
