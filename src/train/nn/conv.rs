@@ -35,7 +35,6 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, Flex, backend_extension};
-use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::tensor::{DType, Tensor, TensorData};
 use gemm::Parallelism;
@@ -146,11 +145,7 @@ pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// Stride, padding and bias of a layer this module computes, on a device it runs on.
 fn covered(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize, Tensor<1>)> {
     let [_, _, kh, kw] = conv.weight.val().dims();
-    let pad = match conv.padding {
-        PaddingConfig2d::Valid => 0,
-        PaddingConfig2d::Explicit(t, l, b, r) if t == l && l == b && b == r => t,
-        _ => return None,
-    };
+    let pad = super::fast::symmetric(&conv.padding)?;
     let [_, _, h, w] = x.dims();
     let plain = conv.groups == 1
         && conv.dilation == [1, 1]
@@ -159,12 +154,17 @@ fn covered(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize, Tensor<1>)> {
         && conv.stride[0] > 0
         && h + 2 * pad >= kh
         && w + 2 * pad >= kw;
-    let on_flex = matches!(x.device().inner().as_dispatch(), DispatchDevice::Flex(_));
-    if !plain || !on_flex || x.dtype() != DType::F32 {
+    if !plain || !on_cpu_kernels(x) {
         return None;
     }
     let bias = conv.bias.as_ref()?.val();
     Some((conv.stride[0], pad, bias))
+}
+
+/// Whether `x` is an f32 tensor on the flex device (with or without autodiff): what the
+/// extensions of this module and [`super::norm`] are implemented for.
+pub(super) fn on_cpu_kernels<const D: usize>(x: &Tensor<D>) -> bool {
+    matches!(x.device().inner().as_dispatch(), DispatchDevice::Flex(_)) && x.dtype() == DType::F32
 }
 
 pub(super) fn dense(t: &FlexTensor) -> Cow<'_, [f32]> {
@@ -316,6 +316,17 @@ fn col2im(g: &Geom, col: &[f32], x: &mut [f32]) {
     }
 }
 
+/// The unrolled image `x_n` as `[k·k·c_in, pixels]`: the image itself for a direct
+/// convolution, else [`im2col`] into `col`.
+fn unrolled<'a>(g: &Geom, x_n: &'a [f32], col: &'a mut Vec<f32>) -> &'a [f32] {
+    if g.direct() {
+        return x_n;
+    }
+    col.resize(g.taps() * g.pixels(), 0.0);
+    im2col(g, x_n, col);
+    col
+}
+
 /// A row-major matrix as `gemm` takes it: pointer, column stride, row stride.
 #[derive(Clone, Copy)]
 struct Mat(*const f32, isize, isize);
@@ -389,14 +400,7 @@ fn forward(g: &Geom, x: &[f32], w: &[f32], b: Option<&[f32]>) -> Vec<f32> {
                 row.fill(bo);
             }
         }
-        let x_n = &x[i * g.image()..][..g.image()];
-        let rhs = if g.direct() {
-            x_n
-        } else {
-            col.resize(taps * pix, 0.0);
-            im2col(g, x_n, col);
-            &col[..]
-        };
+        let rhs = unrolled(g, &x[i * g.image()..][..g.image()], col);
         product(
             y_n,
             [g.o, pix, taps],
@@ -433,11 +437,13 @@ struct Grads {
 fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
     let (pix, taps) = (g.pixels(), g.taps());
     let (chunk, par) = split(g.n);
+    let dw_len = if want.dw { g.o * taps } else { 0 };
+    let db_len = if want.db { g.o } else { 0 };
     // One worker's images: `first..first + count`, its input-gradient slice if wanted; returns
     // its partial weight and bias gradients.
     let work = |first: usize, count: usize, mut dx: Option<&mut [f32]>| {
-        let mut dw = vec![0.0f32; if want.dw { g.o * taps } else { 0 }];
-        let mut db = vec![0.0f32; if want.db { g.o } else { 0 }];
+        let mut dw = vec![0.0f32; dw_len];
+        let mut db = vec![0.0f32; db_len];
         let mut col = Vec::new();
         let mut dcol = Vec::new();
         for j in 0..count {
@@ -449,14 +455,7 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
                 }
             }
             if want.dw {
-                let x_n = &x[i * g.image()..][..g.image()];
-                let cols = if g.direct() {
-                    x_n
-                } else {
-                    col.resize(taps * pix, 0.0);
-                    im2col(g, x_n, &mut col);
-                    &col[..]
-                };
+                let cols = unrolled(g, &x[i * g.image()..][..g.image()], &mut col);
                 product(
                     &mut dw,
                     [g.o, taps, pix],
@@ -499,8 +498,7 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
             .map(|c| work(c * chunk, chunk.min(g.n - c * chunk), None))
             .collect(),
     };
-    let mut parts = parts.into_iter();
-    let (mut dw, mut db) = parts.next().unwrap_or_default();
+    let (mut dw, mut db) = (vec![0.0f32; dw_len], vec![0.0f32; db_len]);
     for (pw, pb) in parts {
         for (a, v) in dw.iter_mut().zip(&pw) {
             *a += v;
@@ -508,10 +506,6 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
         for (a, v) in db.iter_mut().zip(&pb) {
             *a += v;
         }
-    }
-    if g.n == 0 {
-        dw = vec![0.0; if want.dw { g.o * taps } else { 0 }];
-        db = vec![0.0; if want.db { g.o } else { 0 }];
     }
     Grads {
         dx,
@@ -523,26 +517,11 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use burn::nn::PaddingConfig2d;
     use burn::nn::conv::Conv2dConfig;
     use burn::tensor::{Device, Distribution};
 
-    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-        t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
-    }
-
-    /// `|a − b| ≤ tol · max|b|` elementwise: f32 sums of at most a few hundred products of
-    /// O(1) terms, so a relative 1e-4 of the largest entry is ample for rounding and still
-    /// catches a misplaced tap (which moves whole entries).
-    fn close(what: &str, a: &[f32], b: &[f32]) {
-        assert_eq!(a.len(), b.len(), "{what}: lengths");
-        let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
-        for (i, (x, y)) in a.iter().zip(b).enumerate() {
-            assert!(
-                (x - y).abs() <= 1e-4 * scale,
-                "{what}[{i}]: {x} against burn's {y} (largest {scale})"
-            );
-        }
-    }
+    use crate::train::nn::tests::{close_to_largest as close, values};
 
     /// Our convolution against burn's `Conv2d::forward`: values, and the gradients of
     /// `Σ y ⊙ r` for a random `r` with respect to the input, weight and bias.

@@ -90,7 +90,7 @@ fn param<const D: usize>(p: &Param<Tensor<D>>) -> Option<Vec<f32>> {
 }
 
 /// The symmetric padding of a conv or pool, when it has one.
-fn symmetric(p: &PaddingConfig2d) -> Option<usize> {
+pub(super) fn symmetric(p: &PaddingConfig2d) -> Option<usize> {
     match *p {
         PaddingConfig2d::Valid => Some(0),
         PaddingConfig2d::Explicit(t, l, b, r) if t == l && l == b && b == r => Some(t),

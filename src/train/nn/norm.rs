@@ -24,14 +24,13 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{
-    Autodiff, AutodiffBackend, Backend, Dispatch, DispatchDevice, ExtensionType, Flex,
-    backend_extension,
+    Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, Flex, backend_extension,
 };
 use burn::nn::BatchNorm;
-use burn::tensor::{DType, Tensor};
+use burn::tensor::Tensor;
 use rayon::prelude::*;
 
-use super::conv::{dense, flex};
+use super::conv::{dense, flex, on_cpu_kernels};
 
 /// A training batch norm's output and the batch statistics it used.
 #[derive(ExtensionType)]
@@ -61,16 +60,9 @@ impl TrainNorm for Flex {
     ) -> NormOut<Self> {
         let shape = x.layout().shape().clone();
         let g = Planes::of(&x);
-        let (mean, var) = stats(&g, &dense(&x));
-        let y = normalise(
-            &g,
-            &dense(&x),
-            &dense(&gamma),
-            &dense(&beta),
-            &mean,
-            &var,
-            epsilon,
-        );
+        let xs = dense(&x);
+        let (mean, var) = stats(&g, &xs);
+        let y = normalise(&g, &xs, &dense(&gamma), &dense(&beta), &mean, &var, epsilon);
         NormOut {
             output: FlexTensor::from_data(burn::tensor::TensorData::new(y, shape)),
             mean: flex(mean, [g.c]),
@@ -157,7 +149,7 @@ fn normalise(
 struct NormBackward;
 
 impl Backward<Flex, 3> for NormBackward {
-    type State = (FlexTensor, FlexTensor, Vec<f32>, Vec<f32>, f64);
+    type State = (FlexTensor, FlexTensor, FlexTensor, FlexTensor, f64);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node_x, node_gamma, node_beta] = ops.parents;
@@ -166,6 +158,7 @@ impl Backward<Flex, 3> for NormBackward {
         let g = Planes::of(&x);
         let shape = x.layout().shape().clone();
         let (x, dy, gamma) = (dense(&x), dense(&dy), dense(&gamma));
+        let (mean, var) = (dense(&mean), dense(&var));
         let inv: Vec<f32> = var
             .iter()
             .map(|&v| 1.0 / ((v as f64 + eps).sqrt() as f32))
@@ -233,8 +226,6 @@ impl<C: CheckpointStrategy> TrainNorm for Autodiff<Flex, C> {
             beta.primitive().clone(),
             epsilon,
         );
-        let mean: Vec<f32> = dense(&out.mean).into_owned();
-        let var: Vec<f32> = dense(&out.variance).into_owned();
         let output = match NormBackward
             .prepare::<C>([x.node(), gamma.node(), beta.node()])
             .compute_bound()
@@ -244,8 +235,8 @@ impl<C: CheckpointStrategy> TrainNorm for Autodiff<Flex, C> {
                 (
                     x.into_primitive(),
                     gamma.into_primitive(),
-                    mean,
-                    var,
+                    out.mean.clone(),
+                    out.variance.clone(),
                     epsilon,
                 ),
                 out.output,
@@ -265,8 +256,7 @@ impl<C: CheckpointStrategy> TrainNorm for Autodiff<Flex, C> {
 pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
     let dev = x.device();
     let training = dev.is_autodiff() && bn.training.is_enabled();
-    let on_flex = matches!(dev.clone().inner().as_dispatch(), DispatchDevice::Flex(_));
-    if !training || !on_flex || x.dtype() != DType::F32 {
+    if !training || !on_cpu_kernels(&x) {
         return bn.forward(x);
     }
     let out = <Dispatch as TrainNorm>::train_batch_norm(
@@ -275,23 +265,15 @@ pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
         bn.beta.val().into_dispatch(),
         bn.epsilon,
     );
-    let mean = Tensor::<1>::from_dispatch(out.mean);
-    let var = Tensor::<1>::from_dispatch(out.variance);
     let m = bn.momentum;
-    let running_mean = bn.running_mean.value_sync().to_device(&dev);
-    let running_var = bn.running_var.value_sync().to_device(&dev);
-    bn.running_mean.update(
-        running_mean
-            .mul_scalar(1.0 - m)
-            .add(mean.detach().mul_scalar(m))
-            .detach(),
-    );
-    bn.running_var.update(
-        running_var
-            .mul_scalar(1.0 - m)
-            .add(var.detach().mul_scalar(m))
-            .detach(),
-    );
+    for (running, batch) in [
+        (&bn.running_mean, out.mean),
+        (&bn.running_var, out.variance),
+    ] {
+        let batch = Tensor::<1>::from_dispatch(batch).detach();
+        let r = running.value_sync().to_device(&dev);
+        running.update(r.mul_scalar(1.0 - m).add(batch.mul_scalar(m)).detach());
+    }
     Tensor::from_dispatch(out.output)
 }
 
@@ -301,22 +283,7 @@ mod tests {
     use burn::nn::BatchNormConfig;
     use burn::tensor::{Device, Distribution};
 
-    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-        t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
-    }
-
-    /// `|a − b| ≤ 1e-4 · max|b|`: the two compute the same sums in a different order (and ours
-    /// partly in f64), so they differ by f32 rounding of terms of the size of the largest.
-    fn close(what: &str, a: &[f32], b: &[f32]) {
-        assert_eq!(a.len(), b.len(), "{what}: lengths");
-        let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
-        for (i, (x, y)) in a.iter().zip(b).enumerate() {
-            assert!(
-                (x - y).abs() <= 1e-4 * scale,
-                "{what}[{i}]: {x} against burn's {y} (largest {scale})"
-            );
-        }
-    }
+    use crate::train::nn::tests::{close_to_largest as close, values};
 
     /// Ours against burn's `BatchNorm::forward` in training: output, the three gradients of
     /// `Σ y ⊙ r`, and the running statistics after two steps.
