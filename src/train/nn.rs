@@ -27,7 +27,7 @@ mod fast;
 mod norm;
 pub use conv::conv2d;
 pub use fast::FastEncoder;
-pub use norm::batch_norm;
+pub use norm::{batch_norm, batch_norm_relu};
 
 /// Reflection padding of the two spatial axes of an NCHW tensor (the CycleGAN generator pads
 /// this way so that borders carry image content, not zeros).
@@ -369,12 +369,15 @@ impl ResUnit {
             (Some(c), Some(b)) => batch_norm(b, conv2d(c, x.clone())),
             _ => x.clone(),
         };
-        let mut y = relu(batch_norm(&self.bn1, conv2d(&self.conv1, x)));
-        y = batch_norm(&self.bn2, conv2d(&self.conv2, y));
-        if let (Some(c3), Some(b3)) = (&self.conv3, &self.bn3) {
-            y = batch_norm(b3, conv2d(c3, relu(y)));
+        let y = batch_norm_relu(&self.bn1, conv2d(&self.conv1, x), None);
+        let y = conv2d(&self.conv2, y);
+        match (&self.conv3, &self.bn3) {
+            (Some(c3), Some(b3)) => {
+                let y = batch_norm_relu(&self.bn2, y, None);
+                batch_norm_relu(b3, conv2d(c3, y), Some(shortcut))
+            }
+            _ => batch_norm_relu(&self.bn2, y, Some(shortcut)),
         }
-        relu(y + shortcut)
     }
 }
 
@@ -430,7 +433,7 @@ impl Encoder {
 
     /// `[N, 3, H, W]` → `[N, embed]`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let mut x = relu(batch_norm(&self.stem_bn, conv2d(&self.stem, x)));
+        let mut x = batch_norm_relu(&self.stem_bn, conv2d(&self.stem, x), None);
         if let Some(p) = &self.pool {
             x = p.forward(x);
         }

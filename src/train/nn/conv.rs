@@ -16,7 +16,13 @@
 //! - **input gradient:** `dcol = Wᵀ · dy_n`, folded back onto the image (`col2im`, the adjoint
 //!   of the unrolling: every tap adds into the pixel it read).
 //!
-//! A 1 × 1 convolution of stride 1 without padding uses the image itself as `col`. Images are
+//! A 1 × 1 convolution of stride 1 without padding uses the image itself as `col`. A 3 × 3
+//! convolution of stride 1 and padding 1, most of a ResNet's, is not unrolled at all: each
+//! image (and `dy`) is copied once channels-last with a zero border, and every product reads
+//! that copy with overlapping rows ([`three_rows`], as the inference path of [`super::fast`]
+//! does): the forward and the input gradient (the convolution of `dy` with the kernel turned
+//! by 180° and its channels swapped) are three products each, one per kernel row; the weight
+//! gradient of kernel row `ky` is the transpose of that row's left side times `dy`. Images are
 //! shared out over the rayon pool (one product per image on one thread); a batch smaller than
 //! the pool runs its products multi-threaded instead. Transposes are strides handed to `gemm`.
 //!
@@ -27,6 +33,7 @@
 //! wider than the input and strides that skip pixels.
 
 use std::borrow::Cow;
+use std::mem::MaybeUninit;
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -178,6 +185,65 @@ pub(super) fn flex<const D: usize>(v: Vec<f32>, shape: [usize; D]) -> FlexTensor
     FlexTensor::from_data(TensorData::new(v, shape))
 }
 
+/// `Σ f(v_i)` in f64, as eight independent partial sums. One running sum is a chain of
+/// dependent additions that the compiler must keep in order (float addition is not
+/// associative), one addition per latency; eight chains let the loop vectorise.
+#[inline]
+pub(super) fn sum_of(v: &[f32], f: impl Fn(f32) -> f64) -> f64 {
+    let mut acc = [0.0f64; 8];
+    let mut chunks = v.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, &x) in acc.iter_mut().zip(c) {
+            *a += f(x);
+        }
+    }
+    let tail: f64 = chunks.remainder().iter().map(|&x| f(x)).sum();
+    acc.iter().sum::<f64>() + tail
+}
+
+/// `n` floats for a kernel that writes every one of them before anything reads it: the
+/// allocation without the zero fill of `vec![0.0; n]`, a pass over memory that would be
+/// overwritten anyway. [`written`] turns it into the vector.
+pub(super) fn unwritten(n: usize) -> Vec<MaybeUninit<f32>> {
+    let mut v = Vec::with_capacity(n);
+    // SAFETY: `MaybeUninit<f32>` is valid uninitialised, and the capacity is `n`.
+    unsafe { v.set_len(n) };
+    v
+}
+
+/// The vector of [`unwritten`], once every element has been written.
+///
+/// # Safety
+/// Every element of `v` must have been initialised.
+pub(super) unsafe fn written(v: Vec<MaybeUninit<f32>>) -> Vec<f32> {
+    let mut v = std::mem::ManuallyDrop::new(v);
+    // SAFETY: `MaybeUninit<f32>` has the layout of `f32`; the caller vouches for the values;
+    // pointer, length and capacity come from a vector whose ownership moves here.
+    unsafe { Vec::from_raw_parts(v.as_mut_ptr().cast::<f32>(), v.len(), v.capacity()) }
+}
+
+/// `out_i = f(a_i, b_i)`, shared out over the rayon pool in blocks.
+pub(super) fn map2(a: &[f32], b: &[f32], f: impl Fn(f32, f32) -> f32 + Sync) -> Vec<f32> {
+    assert_eq!(
+        a.len(),
+        b.len(),
+        "map2: {} against {} values",
+        a.len(),
+        b.len()
+    );
+    const BLOCK: usize = 1 << 14;
+    let mut out = unwritten(a.len());
+    out.par_chunks_mut(BLOCK)
+        .zip(a.par_chunks(BLOCK).zip(b.par_chunks(BLOCK)))
+        .for_each(|(o, (a, b))| {
+            for ((o, &a), &b) in o.iter_mut().zip(a).zip(b) {
+                o.write(f(a, b));
+            }
+        });
+    // SAFETY: the blocks of `out` match those of `a` one to one, each written in full.
+    unsafe { written(out) }
+}
+
 /// The sizes of one convolution.
 #[derive(Debug, Clone, Copy)]
 struct Geom {
@@ -233,6 +299,12 @@ impl Geom {
     /// The 1 × 1, stride 1, unpadded case: the image is its own unrolling.
     fn direct(&self) -> bool {
         self.k == 1 && self.s == 1 && self.p == 0
+    }
+
+    /// The 3 × 3, stride 1, padding 1 case: three products on a [`border`]ed copy of the
+    /// image, without im2col ([`three_rows`]).
+    fn three(&self) -> bool {
+        self.k == 3 && self.s == 1 && self.p == 1
     }
 }
 
@@ -340,6 +412,22 @@ impl Mat {
     fn transposed(v: &[f32], cols: usize) -> Self {
         Self(v.as_ptr(), cols as isize, 1)
     }
+
+    /// `[rows, cols]` with contiguous rows that start `stride` floats apart, which may be
+    /// fewer than `cols`: the rows then overlap (read only). Checks that `v` holds them all.
+    fn overlapping(v: &[f32], [rows, cols]: [usize; 2], stride: usize) -> Self {
+        assert!(
+            rows == 0 || (rows - 1) * stride + cols <= v.len(),
+            "{rows} rows of {cols} floats {stride} apart do not fit in {}",
+            v.len()
+        );
+        Self(v.as_ptr(), 1, stride as isize)
+    }
+
+    /// This matrix transposed (the same memory).
+    fn t(self) -> Self {
+        Self(self.0, self.2, self.1)
+    }
 }
 
 /// `dst = (accumulate ? dst : 0) + lhs · rhs`, `dst` row-major `[m, n]`.
@@ -353,8 +441,9 @@ fn product(
 ) {
     assert!(dst.len() >= m * n);
     // SAFETY: `dst` holds `m × n` floats (asserted); every caller builds `lhs` (`m × k`) and
-    // `rhs` (`k × n`) from slices of at least that many elements with these strides, and none
-    // of them aliases `dst`.
+    // `rhs` (`k × n`) from slices that hold every element their strides reach for that shape
+    // (row-major or transposed slices of at least that many elements, or
+    // `Mat::overlapping`, which checks it), and none of them aliases `dst`.
     unsafe {
         gemm::gemm(
             m,
@@ -380,6 +469,90 @@ fn product(
     }
 }
 
+/// Writes the NCHW image `src` (`c × h × w`) into `dst` channels-last with a zero border of
+/// one pixel, `(h + 2) × (w + 2)` pixels of `c` floats, and two spare zero pixels after them
+/// (the last output row of [`three_rows`] reads them). Only the border is zeroed: the buffer is
+/// reused from image to image.
+fn border(src: &[f32], [c, h, w]: [usize; 3], dst: &mut Vec<f32>) {
+    let wp = w + 2;
+    dst.resize(((h + 2) * wp + 2) * c, 0.0);
+    // The top row and the left pixel of the first image row.
+    dst[..(wp + 1) * c].fill(0.0);
+    // Each image row's right pixel and the next row's left pixel.
+    for y in 0..h {
+        let right = ((y + 1) * wp + 1 + w) * c;
+        dst[right..right + 2 * c].fill(0.0);
+    }
+    // The bottom row after its left pixel, and the spare pixels.
+    dst[((h + 1) * wp + 1) * c..].fill(0.0);
+    for ci in 0..c {
+        for (y, row) in src[ci * h * w..][..h * w].chunks_exact(w).enumerate() {
+            let at = ((y + 1) * wp + 1) * c + ci;
+            for (x, &v) in row.iter().enumerate() {
+                dst[at + x * c] = v;
+            }
+        }
+    }
+}
+
+/// `dst = Σ_ky L_ky · W_ky`, `dst` row-major `[m, n]`: a 3 × 3, stride-1 convolution of the
+/// [`border`]ed channels-last image `pad` (`wp` pixels a row, `c` floats a pixel), computed on
+/// the padded width (`m = h · wp`; the last two columns of each row are discarded). The three
+/// taps of output pixel `p` in kernel row `ky` are the `3c` floats from padded pixel
+/// `p + ky · wp`, so `L_ky` is `pad` itself read with a row stride of `c` (rows overlap), and
+/// `W_ky` is rows `ky · 3c ..` of `w`, `[9c, n]` with rows in (ky, kx, ci) order.
+pub(super) fn three_rows(
+    pad: &[f32],
+    [wp, c, m]: [usize; 3],
+    w: &[f32],
+    n: usize,
+    dst: &mut [f32],
+    par: Parallelism,
+) {
+    let kr = 3 * c;
+    assert_eq!(w.len(), 3 * kr * n, "three_rows: weights of another shape");
+    for ky in 0..3 {
+        let lhs = Mat::overlapping(&pad[ky * wp * c..], [m, kr], c);
+        let rhs = Mat::rows(&w[ky * kr * n..][..kr * n], n);
+        product(dst, [m, n, kr], ky > 0, lhs, rhs, par);
+    }
+}
+
+/// The valid columns of a channels-last product on the padded width (`h × (w + 2)` pixels of
+/// `n` floats) back in NCHW order: `put(channel, index, value)` for every index of `n × h × w`.
+fn unborder(wide: &[f32], [n, h, w]: [usize; 3], mut put: impl FnMut(usize, usize, f32)) {
+    let wp = w + 2;
+    for o in 0..n {
+        for y in 0..h {
+            for x in 0..w {
+                put(o, (o * h + y) * w + x, wide[(y * wp + x) * n + o]);
+            }
+        }
+    }
+}
+
+/// 3 × 3 weights `[o, c, 3, 3]` as [`three_rows`] takes them: `[9c, o]`, rows in (ky, kx, ci)
+/// order; or, `flipped`, those of the input gradient, the convolution of `dy` with the kernel
+/// turned by 180° and its channels swapped: `[9o, c]`, `W'[(ky, kx, o), ci] = W[o, ci, 2 − ky,
+/// 2 − kx]`.
+fn taps_major(w: &[f32], [o, c]: [usize; 2], flipped: bool) -> Vec<f32> {
+    let mut out = vec![0.0f32; 9 * c * o];
+    for oo in 0..o {
+        for ci in 0..c {
+            for t in 0..9 {
+                let v = w[(oo * c + ci) * 9 + t];
+                let at = if flipped {
+                    ((8 - t) * o + oo) * c + ci
+                } else {
+                    (t * c + ci) * o + oo
+                };
+                out[at] = v;
+            }
+        }
+    }
+    out
+}
+
 /// Work shared out by image when the batch fills the pool, else each product multi-threaded.
 fn split(n: usize) -> (usize, Parallelism) {
     let threads = rayon::current_num_threads().max(1);
@@ -392,33 +565,52 @@ fn split(n: usize) -> (usize, Parallelism) {
 
 fn forward(g: &Geom, x: &[f32], w: &[f32], b: Option<&[f32]>) -> Vec<f32> {
     let (pix, taps) = (g.pixels(), g.taps());
-    let mut y = vec![0.0f32; g.n * g.o * pix];
+    let mut y = unwritten(g.n * g.o * pix);
     let (chunk, par) = split(g.n);
-    let per_image = |col: &mut Vec<f32>, i: usize, y_n: &mut [f32]| {
-        if let Some(b) = b {
-            for (row, &bo) in y_n.chunks_mut(pix).zip(b) {
-                row.fill(bo);
+    let bias = |o: usize| b.map_or(0.0, |b| b[o]);
+    let wk = g.three().then(|| taps_major(w, [g.o, g.c], false));
+    // `col` is the unrolled image, or the bordered one and the product on the padded width.
+    let per_image =
+        |col: &mut Vec<f32>, wide: &mut Vec<f32>, i: usize, y_n: &mut [MaybeUninit<f32>]| {
+            let x_n = &x[i * g.image()..][..g.image()];
+            if let Some(wk) = &wk {
+                let wp = g.w + 2;
+                border(x_n, [g.c, g.h, g.w], col);
+                wide.resize(g.h * wp * g.o, 0.0);
+                three_rows(col, [wp, g.c, g.h * wp], wk, g.o, wide, par);
+                unborder(wide, [g.o, g.h, g.w], |o, at, v| {
+                    y_n[at].write(v + bias(o));
+                });
+                return;
             }
-        }
-        let rhs = unrolled(g, &x[i * g.image()..][..g.image()], col);
-        product(
-            y_n,
-            [g.o, pix, taps],
-            b.is_some(),
-            Mat::rows(w, taps),
-            Mat::rows(rhs, pix),
-            par,
-        );
-    };
+            // The bias first; the product adds onto it.
+            for (o, row) in y_n.chunks_mut(pix).enumerate() {
+                row.fill(MaybeUninit::new(bias(o)));
+            }
+            // SAFETY: every element of `y_n` was written just above.
+            let y_n = unsafe { &mut *(y_n as *mut [MaybeUninit<f32>] as *mut [f32]) };
+            let rhs = unrolled(g, x_n, col);
+            product(
+                y_n,
+                [g.o, pix, taps],
+                true,
+                Mat::rows(w, taps),
+                Mat::rows(rhs, pix),
+                par,
+            );
+        };
     y.par_chunks_mut(chunk * g.o * pix)
         .enumerate()
         .for_each(|(c, ys)| {
-            let mut col = Vec::new();
+            let (mut col, mut wide) = (Vec::new(), Vec::new());
             for (j, y_n) in ys.chunks_mut(g.o * pix).enumerate() {
-                per_image(&mut col, c * chunk + j, y_n);
+                per_image(&mut col, &mut wide, c * chunk + j, y_n);
             }
         });
-    y
+    // SAFETY: the chunks cover `y` and `per_image` writes every element of its image (the
+    // 3 × 3 path through `unborder`, which puts every index of `o × h × w`, and here
+    // `ho × wo = h × w`).
+    unsafe { written(y) }
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -439,20 +631,46 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
     let (chunk, par) = split(g.n);
     let dw_len = if want.dw { g.o * taps } else { 0 };
     let db_len = if want.db { g.o } else { 0 };
+    // The 3 × 3 path's input-gradient weights (its weight gradient comes out as `[9c, o]`).
+    let wd = (g.three() && want.dx).then(|| taps_major(w, [g.o, g.c], true));
     // One worker's images: `first..first + count`, its input-gradient slice if wanted; returns
     // its partial weight and bias gradients.
     let work = |first: usize, count: usize, mut dx: Option<&mut [f32]>| {
         let mut dw = vec![0.0f32; dw_len];
         let mut db = vec![0.0f32; db_len];
-        let mut col = Vec::new();
-        let mut dcol = Vec::new();
+        let (mut col, mut dcol, mut wide) = (Vec::new(), Vec::new(), Vec::new());
         for j in 0..count {
             let i = first + j;
             let dy_n = &dy[i * g.o * pix..][..g.o * pix];
             if want.db {
                 for (acc, row) in db.iter_mut().zip(dy_n.chunks(pix)) {
-                    *acc += row.iter().sum::<f32>();
+                    *acc += sum_of(row, f64::from) as f32;
                 }
+            }
+            if g.three() {
+                // `dcol` holds `dy` bordered: the input gradient is the convolution of `dy`
+                // with the turned kernel (`wd`), and the weight gradient for kernel row `ky` is
+                // `L_kyᵀ · dy` on the padded width (whose discarded columns are the border's
+                // zeros in `dcol`).
+                let (wp, kr) = (g.w + 2, 3 * g.c);
+                let m = g.h * wp;
+                border(dy_n, [g.o, g.h, g.w], &mut dcol);
+                if want.dw {
+                    border(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], &mut col);
+                    let dy_wide = Mat::rows(&dcol[(wp + 1) * g.o..][..m * g.o], g.o);
+                    for ky in 0..3 {
+                        let lhs = Mat::overlapping(&col[ky * wp * g.c..], [m, kr], g.c).t();
+                        let dw_ky = &mut dw[ky * kr * g.o..][..kr * g.o];
+                        product(dw_ky, [kr, g.o, m], true, lhs, dy_wide, par);
+                    }
+                }
+                if let (Some(dx), Some(wd)) = (dx.as_deref_mut(), &wd) {
+                    let dx_n = &mut dx[j * g.image()..][..g.image()];
+                    wide.resize(m * g.c, 0.0);
+                    three_rows(&dcol, [wp, g.o, m], wd, g.c, &mut wide, par);
+                    unborder(&wide, [g.c, g.h, g.w], |_, at, v| dx_n[at] = v);
+                }
+                continue;
             }
             if want.dw {
                 let cols = unrolled(g, &x[i * g.image()..][..g.image()], &mut col);
@@ -506,6 +724,18 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
         for (a, v) in db.iter_mut().zip(&pb) {
             *a += v;
         }
+    }
+    if g.three() && want.dw {
+        // `[9c, o]` in (ky, kx, ci) order back to the weight's `[o, c, 3, 3]`.
+        let mut out = vec![0.0f32; dw.len()];
+        for oo in 0..g.o {
+            for ci in 0..g.c {
+                for t in 0..9 {
+                    out[(oo * g.c + ci) * 9 + t] = dw[(t * g.c + ci) * g.o + oo];
+                }
+            }
+        }
+        dw = out;
     }
     Grads {
         dx,
@@ -580,6 +810,10 @@ mod tests {
         check(2, 2, 3, [2, 3], 5, 1, 3);
         check(2, 2, 3, [2, 3], 5, 3, 3);
         check(2, 2, 3, [1, 1], 3, 1, 1);
+        // The 3 × 3, stride-1, padding-1 path (bordered, no im2col): one row, a width that is
+        // a multiple of the vector width, more channels out than in and the reverse.
+        check(2, 5, 16, [1, 9], 3, 1, 1);
+        check(4, 16, 8, [6, 16], 3, 1, 1);
         // Input exactly the kernel's size, no padding: one output pixel.
         check(2, 3, 2, [3, 3], 3, 1, 0);
     }

@@ -27,6 +27,7 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use gemm::Parallelism;
 
+use super::conv::three_rows;
 use super::{Encoder, ResUnit};
 
 /// One convolution with its batch norm folded in.
@@ -171,40 +172,8 @@ impl Conv {
         }
         let n = self.c_out;
         let m = h * wp;
-        let kr = 3 * c;
         let mut wide = vec![0f32; m * n];
-        assert!(self.w.len() == 3 * kr * n);
-        for ky in 0..3 {
-            let lhs = &pad[ky * wp * c..];
-            // The last row read: pixel m − 1 + ky·wp, 3 taps.
-            assert!(lhs.len() >= (m - 1) * c + kr);
-            let rhs = &self.w[ky * kr * n..(ky + 1) * kr * n];
-            // SAFETY: dst m × n (row-major); lhs m × kr with row stride c (overlapping rows,
-            // read only; length asserted); rhs kr × n row-major; dst does not overlap either.
-            unsafe {
-                gemm::gemm(
-                    m,
-                    n,
-                    kr,
-                    wide.as_mut_ptr(),
-                    1,
-                    n as isize,
-                    ky > 0,
-                    lhs.as_ptr(),
-                    1,
-                    c as isize,
-                    rhs.as_ptr(),
-                    1,
-                    n as isize,
-                    1.0,
-                    1.0,
-                    false,
-                    false,
-                    false,
-                    Parallelism::None,
-                );
-            }
-        }
+        three_rows(pad, [wp, c, m], &self.w, n, &mut wide, Parallelism::None);
         // The valid columns of each row, then the epilogue.
         let mut out = Vec::with_capacity(h * w * n);
         for y in 0..h {

@@ -1,5 +1,6 @@
 //! Batch norm in training mode on the CPU, forward and backward on our own loops, through a
-//! burn backend extension (as [`super::conv`] does for the convolution).
+//! burn backend extension (as [`super::conv`] does for the convolution), with the residual
+//! addition and the ReLU that follow it in a ResNet fused in.
 //!
 //! burn computes a training batch norm from generic tensor operations: the statistics of each
 //! channel come from `swap_dims(0, 1)` and a reshape, which on the flex backend is a full
@@ -9,18 +10,25 @@
 //! `H·W` values, read in place:
 //!
 //! - **forward:** per channel the mean `μ` and biased variance `σ²` over `N·H·W` values (two
-//!   passes, sums in f64), then `y = γ (x − μ) / √(σ² + ε) + β`;
-//! - **backward** (Ioffe and Szegedy 2015, §3): with `x̂ = (x − μ) / √(σ² + ε)` and `m = N·H·W`,
-//!   `dβ = Σ dy`, `dγ = Σ dy·x̂`, `dx = γ / √(σ² + ε) · (dy − dβ/m − x̂·dγ/m)`.
+//!   passes, sums in f64), then `z = γ (x − μ) / √(σ² + ε) + β (+ r)` and `y = z` or
+//!   `y = max(z, 0)`, in one pass: the ResNet's `relu(bn(x) + shortcut)` without the two
+//!   passes and two activations the separate addition and ReLU would cost;
+//! - **backward** (Ioffe and Szegedy 2015, §3): through the ReLU `dz = dy` where `y > 0` (and
+//!   where `y` is NaN, as burn's `relu_backward` keeps it), else 0; `dr = dz`; with
+//!   `x̂ = (x − μ) / √(σ² + ε)` and `m = N·H·W`, `dβ = Σ dz`, `dγ = Σ dz·x̂`,
+//!   `dx = γ / √(σ² + ε) · (dz − dβ/m − x̂·dγ/m)`.
 //!
 //! The mean and biased variance are returned too, untracked, for the running statistics, which
 //! [`batch_norm`] updates exactly as `BatchNorm::forward` does in training. Outside training
-//! (no autodiff, or the layer frozen) and off the flex device, `BatchNorm::forward` runs.
+//! (no autodiff, or the layer frozen) and off the flex device, burn's `BatchNorm::forward`, its
+//! addition and its ReLU run.
+
+use std::borrow::Cow;
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
-use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::autodiff::ops::{Backward, NodeGuard, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{
@@ -28,9 +36,10 @@ use burn::backend::{
 };
 use burn::nn::BatchNorm;
 use burn::tensor::Tensor;
+use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
-use super::conv::{dense, flex, on_cpu_kernels};
+use super::conv::{dense, flex, map2, on_cpu_kernels, sum_of, unwritten, written};
 
 /// A training batch norm's output and the batch statistics it used.
 #[derive(ExtensionType)]
@@ -40,13 +49,24 @@ pub struct NormOut<B: Backend> {
     pub variance: FloatTensor<B>,
 }
 
-/// Batch norm in training mode as a backend operation (NCHW or any `[N, C, ...]`).
+/// Batch norm in training mode as a backend operation (NCHW or any `[N, C, ...]`), then a
+/// ReLU if `relu`; `train_batch_norm_add` adds `residual` (the input's shape) before the ReLU.
 #[backend_extension(Flex, Autodiff)]
 pub trait TrainNorm: Backend {
     fn train_batch_norm(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
+        relu: bool,
+        epsilon: f64,
+    ) -> NormOut<Self>;
+
+    fn train_batch_norm_add(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        residual: FloatTensor<Self>,
+        relu: bool,
         epsilon: f64,
     ) -> NormOut<Self>;
 }
@@ -56,18 +76,61 @@ impl TrainNorm for Flex {
         x: FlexTensor,
         gamma: FlexTensor,
         beta: FlexTensor,
+        relu: bool,
         epsilon: f64,
     ) -> NormOut<Self> {
-        let shape = x.layout().shape().clone();
-        let g = Planes::of(&x);
-        let xs = dense(&x);
-        let (mean, var) = stats(&g, &xs);
-        let y = normalise(&g, &xs, &dense(&gamma), &dense(&beta), &mean, &var, epsilon);
-        NormOut {
-            output: FlexTensor::from_data(burn::tensor::TensorData::new(y, shape)),
-            mean: flex(mean, [g.c]),
-            variance: flex(var, [g.c]),
-        }
+        flex_norm(x, gamma, beta, None, relu, epsilon)
+    }
+
+    fn train_batch_norm_add(
+        x: FlexTensor,
+        gamma: FlexTensor,
+        beta: FlexTensor,
+        residual: FlexTensor,
+        relu: bool,
+        epsilon: f64,
+    ) -> NormOut<Self> {
+        flex_norm(x, gamma, beta, Some(residual), relu, epsilon)
+    }
+}
+
+fn flex_norm(
+    x: FlexTensor,
+    gamma: FlexTensor,
+    beta: FlexTensor,
+    residual: Option<FlexTensor>,
+    relu: bool,
+    epsilon: f64,
+) -> NormOut<Flex> {
+    let shape = x.layout().shape().clone();
+    let g = Planes::of(&x);
+    let xs = dense(&x);
+    if let Some(r) = &residual {
+        assert_eq!(
+            r.layout().shape(),
+            &shape,
+            "train_batch_norm: the residual's shape is not the input's"
+        );
+    }
+    let r = residual.as_ref().map(dense);
+    let (mean, var) = stats(&g, &xs);
+    let y = normalise(
+        &g,
+        &xs,
+        Affine {
+            gamma: &dense(&gamma),
+            beta: &dense(&beta),
+            mean: &mean,
+            var: &var,
+            eps: epsilon,
+        },
+        r.as_deref(),
+        relu,
+    );
+    NormOut {
+        output: FlexTensor::from_data(burn::tensor::TensorData::new(y, shape)),
+        mean: flex(mean, [g.c]),
+        variance: flex(var, [g.c]),
     }
 }
 
@@ -96,6 +159,11 @@ impl Planes {
     fn count(&self) -> f64 {
         (self.n * self.len).max(1) as f64
     }
+
+    /// Channel `c`'s plane of image `n` in `v`.
+    fn plane<'a>(&self, v: &'a [f32], n: usize, c: usize) -> &'a [f32] {
+        &v[(n * self.c + c) * self.len..][..self.len]
+    }
 }
 
 /// Per channel: mean and biased variance, two passes with f64 sums.
@@ -103,13 +171,11 @@ fn stats(g: &Planes, x: &[f32]) -> (Vec<f32>, Vec<f32>) {
     let per: Vec<(f32, f32)> = (0..g.c)
         .into_par_iter()
         .map(|c| {
-            let planes = || (0..g.n).map(move |n| &x[(n * g.c + c) * g.len..][..g.len]);
-            let sum: f64 = planes()
-                .map(|p| p.iter().map(|&v| v as f64).sum::<f64>())
-                .sum();
+            let planes = || (0..g.n).map(move |n| g.plane(x, n, c));
+            let sum: f64 = planes().map(|p| sum_of(p, f64::from)).sum();
             let mean = sum / g.count();
             let sq: f64 = planes()
-                .map(|p| p.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>())
+                .map(|p| sum_of(p, |v| (v as f64 - mean).powi(2)))
                 .sum();
             (mean as f32, (sq / g.count()) as f32)
         })
@@ -117,18 +183,38 @@ fn stats(g: &Planes, x: &[f32]) -> (Vec<f32>, Vec<f32>) {
     per.into_iter().unzip()
 }
 
+/// The per-channel affine map of the normalisation.
+#[derive(Clone, Copy)]
+struct Affine<'a> {
+    gamma: &'a [f32],
+    beta: &'a [f32],
+    mean: &'a [f32],
+    var: &'a [f32],
+    eps: f64,
+}
+
+/// `1 / √(σ² + ε)`.
+fn inv_std(var: f32, eps: f64) -> f32 {
+    1.0 / ((var as f64 + eps).sqrt() as f32)
+}
+
+/// The ReLU as burn's flex backend computes it: NaN goes through.
+#[inline(always)]
+fn activation(z: f32, relu: bool) -> f32 {
+    if relu && z <= 0.0 { 0.0 } else { z }
+}
+
 fn normalise(
     g: &Planes,
     x: &[f32],
-    gamma: &[f32],
-    beta: &[f32],
-    mean: &[f32],
-    var: &[f32],
-    eps: f64,
+    a: Affine<'_>,
+    residual: Option<&[f32]>,
+    relu: bool,
 ) -> Vec<f32> {
-    let mut y = vec![0.0f32; x.len()];
+    let mut y = unwritten(x.len());
     if g.len == 0 {
-        return y;
+        // SAFETY: empty.
+        return unsafe { written(y) };
     }
     y.par_chunks_mut(g.len)
         .zip(x.par_chunks(g.len))
@@ -136,66 +222,109 @@ fn normalise(
         .for_each(|(i, (yp, xp))| {
             let c = i % g.c;
             // `(x − μ)` first: exact for values near μ, where `x·s + (β − μ·s)` would cancel.
-            let (mu, scale) = (mean[c], gamma[c] / ((var[c] as f64 + eps).sqrt() as f32));
-            for (o, &v) in yp.iter_mut().zip(xp) {
-                *o = (v - mu) * scale + beta[c];
+            let (mu, scale, b) = (a.mean[c], a.gamma[c] * inv_std(a.var[c], a.eps), a.beta[c]);
+            match residual {
+                Some(r) => {
+                    let rp = &r[i * g.len..][..g.len];
+                    for ((o, &v), &r) in yp.iter_mut().zip(xp).zip(rp) {
+                        o.write(activation((v - mu) * scale + b + r, relu));
+                    }
+                }
+                None => {
+                    for (o, &v) in yp.iter_mut().zip(xp) {
+                        o.write(activation((v - mu) * scale + b, relu));
+                    }
+                }
             }
         });
-    y
+    // SAFETY: the planes cover `y`, each written in full.
+    unsafe { written(y) }
 }
 
-/// The backward step's state: input, γ, and the batch statistics.
+/// Per channel `(Σ dz, Σ dz·x̂)` over one plane, in f64 with eight partial sums each (as
+/// [`sum_of`]).
+fn grad_sums(dz: &[f32], x: &[f32], mean: f32, inv: f32) -> (f64, f64) {
+    let (mut db, mut dg) = ([0.0f64; 8], [0.0f64; 8]);
+    let (mut d8, mut x8) = (dz.chunks_exact(8), x.chunks_exact(8));
+    for (d, v) in (&mut d8).zip(&mut x8) {
+        for j in 0..8 {
+            db[j] += d[j] as f64;
+            dg[j] += d[j] as f64 * ((v[j] - mean) * inv) as f64;
+        }
+    }
+    let (mut tb, mut tg) = (0.0f64, 0.0f64);
+    for (&d, &v) in d8.remainder().iter().zip(x8.remainder()) {
+        tb += d as f64;
+        tg += d as f64 * ((v - mean) * inv) as f64;
+    }
+    (db.iter().sum::<f64>() + tb, dg.iter().sum::<f64>() + tg)
+}
+
+/// What the backward step keeps: the input, the output if a ReLU was applied (its mask), γ,
+/// the batch statistics and ε.
+#[derive(Debug, Clone)]
+struct NormState {
+    x: FlexTensor,
+    relu_out: Option<FlexTensor>,
+    gamma: FlexTensor,
+    mean: FlexTensor,
+    var: FlexTensor,
+    eps: f64,
+}
+
+/// The backward step; `N` is 3 (input, γ, β) or 4 (and the residual).
 #[derive(Debug)]
-struct NormBackward;
+struct NormBackward<const N: usize>;
 
-impl Backward<Flex, 3> for NormBackward {
-    type State = (FlexTensor, FlexTensor, FlexTensor, FlexTensor, f64);
+impl<const N: usize> Backward<Flex, N> for NormBackward<N> {
+    type State = NormState;
 
-    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let [node_x, node_gamma, node_beta] = ops.parents;
-        let dy = grads.consume::<Flex>(&ops.node);
-        let (x, gamma, mean, var, eps) = ops.state;
-        let g = Planes::of(&x);
-        let shape = x.layout().shape().clone();
-        let (x, dy, gamma) = (dense(&x), dense(&dy), dense(&gamma));
-        let (mean, var) = (dense(&mean), dense(&var));
-        let inv: Vec<f32> = var
-            .iter()
-            .map(|&v| 1.0 / ((v as f64 + eps).sqrt() as f32))
-            .collect();
-        // Per channel Σ dy and Σ dy·x̂.
+    fn backward(self, ops: Ops<Self::State, N>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let mut parents = ops.parents.into_iter();
+        let mut next = || parents.next().flatten();
+        let (node_x, node_gamma, node_beta, node_r) = (next(), next(), next(), next());
+        let dy_t = grads.consume::<Flex>(&ops.node);
+        let s = ops.state;
+        let g = Planes::of(&s.x);
+        let shape = s.x.layout().shape().clone();
+        let dy = dense(&dy_t);
+        // Through the ReLU.
+        let dz: Cow<'_, [f32]> = match &s.relu_out {
+            Some(y) => Cow::Owned(map2(&dy, &dense(y), |d, y| if y <= 0.0 { 0.0 } else { d })),
+            None => dy,
+        };
+        let (x, gamma) = (dense(&s.x), dense(&s.gamma));
+        let (mean, var) = (dense(&s.mean), dense(&s.var));
+        let inv: Vec<f32> = var.iter().map(|&v| inv_std(v, s.eps)).collect();
         let sums: Vec<(f64, f64)> = (0..g.c)
             .into_par_iter()
             .map(|c| {
-                let (mut db, mut dg) = (0.0f64, 0.0f64);
-                for n in 0..g.n {
-                    let at = (n * g.c + c) * g.len;
-                    for (&d, &v) in dy[at..at + g.len].iter().zip(&x[at..at + g.len]) {
-                        db += d as f64;
-                        dg += d as f64 * ((v - mean[c]) * inv[c]) as f64;
-                    }
-                }
-                (db, dg)
+                (0..g.n)
+                    .map(|n| grad_sums(g.plane(&dz, n, c), g.plane(&x, n, c), mean[c], inv[c]))
+                    .fold((0.0, 0.0), |t, p| (t.0 + p.0, t.1 + p.1))
             })
             .collect();
         if let Some(node) = node_x {
             let m = g.count();
-            let mut dx = vec![0.0f32; x.len()];
+            let mut dx = unwritten(x.len());
             if g.len > 0 {
                 dx.par_chunks_mut(g.len).enumerate().for_each(|(i, dxp)| {
                     let c = i % g.c;
                     let at = i * g.len;
-                    let k = gamma[c] * inv[c];
+                    let inv = inv[c];
+                    let k = gamma[c] * inv;
                     let mdb = (sums[c].0 / m) as f32;
                     let mdg = (sums[c].1 / m) as f32;
-                    for ((o, &d), &v) in dxp.iter_mut().zip(&dy[at..]).zip(&x[at..]) {
-                        *o = k * (d - mdb - (v - mean[c]) * inv[c] * mdg);
+                    for ((o, &d), &v) in dxp.iter_mut().zip(&dz[at..]).zip(&x[at..]) {
+                        o.write(k * (d - mdb - (v - mean[c]) * inv * mdg));
                     }
                 });
             }
+            // SAFETY: the planes cover `dx`, each written in full.
+            let dx = unsafe { written(dx) };
             grads.register::<Flex>(
                 node.id,
-                FlexTensor::from_data(burn::tensor::TensorData::new(dx, shape)),
+                FlexTensor::from_data(burn::tensor::TensorData::new(dx, shape.clone())),
             );
         }
         if let Some(node) = node_gamma {
@@ -210,6 +339,30 @@ impl Backward<Flex, 3> for NormBackward {
                 flex(sums.iter().map(|s| s.0 as f32).collect(), [g.c]),
             );
         }
+        if let Some(node) = node_r {
+            let dr = match dz {
+                Cow::Owned(dz) => FlexTensor::from_data(burn::tensor::TensorData::new(dz, shape)),
+                // No ReLU: the residual's gradient is the output's, shared.
+                Cow::Borrowed(_) => dy_t.clone(),
+            };
+            grads.register::<Flex>(node.id, dr);
+        }
+    }
+}
+
+/// Records the backward step of one batch norm on the graph.
+fn tracked<C: CheckpointStrategy, const N: usize>(
+    nodes: [NodeGuard; N],
+    state: impl FnOnce() -> NormState,
+    output: FlexTensor,
+) -> FloatTensor<Autodiff<Flex, C>> {
+    match NormBackward::<N>
+        .prepare::<C>(nodes)
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => prep.finish(state(), output),
+        OpsKind::UnTracked(prep) => prep.finish(output),
     }
 }
 
@@ -218,53 +371,111 @@ impl<C: CheckpointStrategy> TrainNorm for Autodiff<Flex, C> {
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
+        relu: bool,
         epsilon: f64,
     ) -> NormOut<Self> {
-        let out = Flex::train_batch_norm(
-            x.primitive().clone(),
-            gamma.primitive().clone(),
-            beta.primitive().clone(),
-            epsilon,
-        );
-        let output = match NormBackward
-            .prepare::<C>([x.node(), gamma.node(), beta.node()])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => prep.finish(
-                (
-                    x.into_primitive(),
-                    gamma.into_primitive(),
-                    out.mean.clone(),
-                    out.variance.clone(),
-                    epsilon,
-                ),
-                out.output,
-            ),
-            OpsKind::UnTracked(prep) => prep.finish(out.output),
-        };
-        NormOut {
-            output,
-            mean: Self::from_inner(out.mean),
-            variance: Self::from_inner(out.variance),
+        autodiff_norm::<C>(x, gamma, beta, None, relu, epsilon)
+    }
+
+    fn train_batch_norm_add(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        residual: FloatTensor<Self>,
+        relu: bool,
+        epsilon: f64,
+    ) -> NormOut<Self> {
+        autodiff_norm::<C>(x, gamma, beta, Some(residual), relu, epsilon)
+    }
+}
+
+fn autodiff_norm<C: CheckpointStrategy>(
+    x: FloatTensor<Autodiff<Flex, C>>,
+    gamma: FloatTensor<Autodiff<Flex, C>>,
+    beta: FloatTensor<Autodiff<Flex, C>>,
+    residual: Option<FloatTensor<Autodiff<Flex, C>>>,
+    relu: bool,
+    epsilon: f64,
+) -> NormOut<Autodiff<Flex, C>> {
+    let out = flex_norm(
+        x.primitive().clone(),
+        gamma.primitive().clone(),
+        beta.primitive().clone(),
+        residual.as_ref().map(|r| r.primitive().clone()),
+        relu,
+        epsilon,
+    );
+    let (mean, variance) = (out.mean, out.variance);
+    let nodes = [x.node(), gamma.node(), beta.node()];
+    let state = || NormState {
+        x: x.into_primitive(),
+        relu_out: relu.then(|| out.output.clone()),
+        gamma: gamma.into_primitive(),
+        mean: mean.clone(),
+        var: variance.clone(),
+        eps: epsilon,
+    };
+    let output = match &residual {
+        Some(r) => {
+            let [a, b, c] = nodes;
+            tracked::<C, 4>([a, b, c, r.node()], state, out.output.clone())
         }
+        None => tracked::<C, 3>(nodes, state, out.output.clone()),
+    };
+    NormOut {
+        output,
+        mean: Autodiff::<Flex, C>::from_inner(mean),
+        variance: Autodiff::<Flex, C>::from_inner(variance),
     }
 }
 
 /// `bn.forward(x)`: in training on the flex device through this module's loops (and the running
 /// statistics updated as burn does: `r ← (1 − momentum) r + momentum · batch`), else burn's.
 pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
+    fused(bn, x, None, false)
+}
+
+/// `relu(bn.forward(x) + residual)` (without the addition when `residual` is `None`), as one
+/// pass where [`batch_norm`] runs on this module's loops.
+pub fn batch_norm_relu<const D: usize>(
+    bn: &BatchNorm,
+    x: Tensor<D>,
+    residual: Option<Tensor<D>>,
+) -> Tensor<D> {
+    fused(bn, x, residual, true)
+}
+
+fn fused<const D: usize>(
+    bn: &BatchNorm,
+    x: Tensor<D>,
+    residual: Option<Tensor<D>>,
+    with_relu: bool,
+) -> Tensor<D> {
     let dev = x.device();
     let training = dev.is_autodiff() && bn.training.is_enabled();
-    if !training || !on_cpu_kernels(&x) {
-        return bn.forward(x);
+    if !training || !on_cpu_kernels(&x) || residual.as_ref().is_some_and(|r| !on_cpu_kernels(r)) {
+        let mut y = bn.forward(x);
+        if let Some(r) = residual {
+            y = y + r;
+        }
+        return if with_relu { relu(y) } else { y };
     }
-    let out = <Dispatch as TrainNorm>::train_batch_norm(
+    let (x, gamma, beta) = (
         x.into_dispatch(),
         bn.gamma.val().into_dispatch(),
         bn.beta.val().into_dispatch(),
-        bn.epsilon,
     );
+    let out = match residual {
+        Some(r) => <Dispatch as TrainNorm>::train_batch_norm_add(
+            x,
+            gamma,
+            beta,
+            r.into_dispatch(),
+            with_relu,
+            bn.epsilon,
+        ),
+        None => <Dispatch as TrainNorm>::train_batch_norm(x, gamma, beta, with_relu, bn.epsilon),
+    };
     let m = bn.momentum;
     for (running, batch) in [
         (&bn.running_mean, out.mean),
@@ -285,14 +496,18 @@ mod tests {
 
     use crate::train::nn::tests::{close_to_largest as close, values};
 
-    /// Ours against burn's `BatchNorm::forward` in training: output, the three gradients of
-    /// `Σ y ⊙ r`, and the running statistics after two steps.
-    fn check(dims: [usize; 4], offset: f32, spread: f32) {
+    /// Ours against burn's `BatchNorm::forward` in training (then `+ r0` if `residual`, then
+    /// burn's ReLU if `with_relu`): output, the gradients of `Σ y ⊙ r` with respect to the
+    /// input, γ, β (and the residual), and the running statistics after two steps.
+    fn check(dims: [usize; 4], offset: f32, spread: f32, residual: bool, with_relu: bool) {
         let dev = Device::flex().autodiff();
-        let what = format!("{dims:?} offset {offset} spread {spread}");
+        let what = format!(
+            "{dims:?} offset {offset} spread {spread} residual {residual} relu {with_relu}"
+        );
         let x = Tensor::<4>::random(dims, Distribution::Normal(0.0, 1.0), &dev)
             .mul_scalar(spread)
             .add_scalar(offset);
+        let r0 = Tensor::<4>::random(dims, Distribution::Normal(0.0, 1.0), &dev);
         let r = Tensor::<4>::random(dims, Distribution::Normal(0.0, 1.0), &dev);
         let mut got = Vec::new();
         for ours in [true, false] {
@@ -305,10 +520,16 @@ mod tests {
             let mut out = Vec::new();
             for _ in 0..2 {
                 let xi = x.clone().detach().require_grad();
+                let ri = r0.clone().detach().require_grad();
+                let res = residual.then(|| ri.clone());
                 let y = if ours {
-                    batch_norm(&bn, xi.clone())
+                    fused(&bn, xi.clone(), res, with_relu)
                 } else {
-                    bn.forward(xi.clone())
+                    let mut y = bn.forward(xi.clone());
+                    if let Some(res) = res {
+                        y = y + res;
+                    }
+                    if with_relu { relu(y) } else { y }
                 };
                 let grads = (y.clone() * r.clone()).sum().backward();
                 out = vec![
@@ -317,26 +538,42 @@ mod tests {
                     values(bn.gamma.val().grad(&grads).unwrap()),
                     values(bn.beta.val().grad(&grads).unwrap()),
                 ];
+                if residual {
+                    out.push(values(ri.grad(&grads).unwrap()));
+                }
             }
             out.push(values(bn.running_mean.value()));
             out.push(values(bn.running_var.value()));
             got.push(out);
         }
-        for (i, part) in ["y", "dx", "dgamma", "dbeta", "running mean", "running var"]
-            .iter()
-            .enumerate()
-        {
+        let mut parts = vec!["y", "dx", "dgamma", "dbeta"];
+        if residual {
+            parts.push("dresidual");
+        }
+        parts.extend(["running mean", "running var"]);
+        assert_eq!(parts.len(), got[0].len());
+        for (i, part) in parts.iter().enumerate() {
             close(&format!("{what}: {part}"), &got[0][i], &got[1][i]);
         }
     }
 
     #[test]
     fn the_training_batch_norm_matches_burns_values_gradients_and_running_statistics() {
-        check([4, 3, 5, 6], 0.0, 1.0);
+        check([4, 3, 5, 6], 0.0, 1.0, false, false);
         // One pixel, three images: three values a channel. (With two, x̂ = ±1 whatever x is
         // and dx is rounding noise around zero in both implementations.)
-        check([3, 5, 1, 1], 0.0, 1.0);
-        check([1, 2, 7, 3], 0.0, 1.0);
+        check([3, 5, 1, 1], 0.0, 1.0, false, false);
+        // Planes of 21 values: the eight-lane sums have a tail.
+        check([1, 2, 7, 3], 0.0, 1.0, false, false);
+    }
+
+    #[test]
+    fn the_fused_residual_and_relu_match_burns_addition_and_relu() {
+        // About half the outputs are cut by the ReLU, so the masked gradient is exercised.
+        for (residual, with_relu) in [(false, true), (true, true), (true, false)] {
+            check([4, 3, 5, 6], 0.0, 1.0, residual, with_relu);
+            check([2, 4, 3, 11], 0.5, 2.0, residual, with_relu);
+        }
     }
 
     #[test]
