@@ -60,8 +60,8 @@ pub use findings::{Aggregate, Verdict, aggregate, markdown, verdicts};
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size meant for 2 CPU cores in about two hours (159 min measured
-    /// end to end on 2 cores before the training convolution of `nn::conv`; README, Commands).
+    /// The whole split at a size meant for 2 CPU cores in under two hours (98 min measured end
+    /// to end on 2 cores on 2026-11-28, 34 of them training; README, Commands).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
@@ -168,10 +168,11 @@ impl Protocol {
                     ..small_gan
                 },
                 // 480 Adam steps of 16 sequences (960 training trajectories, 4 sequences
-                // each, 2 epochs): 27 models of ResNet-18 width 8 train at about 55 sequences/s
-                // on 2 cores (two at a time; 41/s one alone, `rig bench train --speed --width 8
-                // --batch 16`), so this is an hour of the two. The quick demo's models learn
-                // normal force in 360 steps; they learnt shear on their own sensor in 720.
+                // each, 2 epochs): 27 models of ResNet-18 width 8, two at a time on one core
+                // each (about 55 sequences/s each since the kernels of 9e8c057, `RAYON_NUM_THREADS=1
+                // rig bench train --speed --size 32x24 --width 8 --batch 16`): 34 minutes of the
+                // 98 measured. The quick demo's models learn normal force in 360 steps; they
+                // learnt shear on their own sensor in 720.
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
