@@ -531,18 +531,20 @@ fn unborder(wide: &[f32], [n, h, w]: [usize; 3], mut put: impl FnMut(usize, usiz
     }
 }
 
-/// 3 × 3 weights `[o, c, 3, 3]` as [`three_rows`] takes them: `[9c, o]`, rows in (ky, kx, ci)
-/// order; or, `flipped`, those of the input gradient, the convolution of `dy` with the kernel
-/// turned by 180° and its channels swapped: `[9o, c]`, `W'[(ky, kx, o), ci] = W[o, ci, 2 − ky,
-/// 2 − kx]`.
-fn taps_major(w: &[f32], [o, c]: [usize; 2], flipped: bool) -> Vec<f32> {
-    let mut out = vec![0.0f32; 9 * c * o];
+/// Weights `[o, c, k, k]` with their taps first: `[k²c, o]`, rows in (ky, kx, ci) order, as
+/// [`three_rows`] (for k = 3) and the channels-last products of [`super::fast`] take them; or,
+/// `flipped`, those of the input gradient, the convolution of `dy` with the kernel turned by
+/// 180° and its channels swapped: `[k²o, c]`, `W'[(ky, kx, o), ci] = W[o, ci, k−1−ky, k−1−kx]`.
+pub(super) fn taps_major(w: &[f32], [o, c, k]: [usize; 3], flipped: bool) -> Vec<f32> {
+    let kk = k * k;
+    assert_eq!(w.len(), o * c * kk, "taps_major: weights of another shape");
+    let mut out = vec![0.0f32; kk * c * o];
     for oo in 0..o {
         for ci in 0..c {
-            for t in 0..9 {
-                let v = w[(oo * c + ci) * 9 + t];
+            for t in 0..kk {
+                let v = w[(oo * c + ci) * kk + t];
                 let at = if flipped {
-                    ((8 - t) * o + oo) * c + ci
+                    ((kk - 1 - t) * o + oo) * c + ci
                 } else {
                     (t * c + ci) * o + oo
                 };
@@ -568,7 +570,7 @@ fn forward(g: &Geom, x: &[f32], w: &[f32], b: Option<&[f32]>) -> Vec<f32> {
     let mut y = unwritten(g.n * g.o * pix);
     let (chunk, par) = split(g.n);
     let bias = |o: usize| b.map_or(0.0, |b| b[o]);
-    let wk = g.three().then(|| taps_major(w, [g.o, g.c], false));
+    let wk = g.three().then(|| taps_major(w, [g.o, g.c, 3], false));
     // `col` is the unrolled image, or the bordered one and the product on the padded width.
     let per_image =
         |col: &mut Vec<f32>, wide: &mut Vec<f32>, i: usize, y_n: &mut [MaybeUninit<f32>]| {
@@ -632,7 +634,7 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
     let dw_len = if want.dw { g.o * taps } else { 0 };
     let db_len = if want.db { g.o } else { 0 };
     // The 3 × 3 path's input-gradient weights (its weight gradient comes out as `[9c, o]`).
-    let wd = (g.three() && want.dx).then(|| taps_major(w, [g.o, g.c], true));
+    let wd = (g.three() && want.dx).then(|| taps_major(w, [g.o, g.c, 3], true));
     // One worker's images: `first..first + count`, its input-gradient slice if wanted; returns
     // its partial weight and bias gradients.
     let work = |first: usize, count: usize, mut dx: Option<&mut [f32]>| {

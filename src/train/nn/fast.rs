@@ -27,7 +27,7 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use gemm::Parallelism;
 
-use super::conv::three_rows;
+use super::conv::{taps_major, three_rows};
 use super::{Encoder, ResUnit};
 
 /// One convolution with its batch norm folded in.
@@ -128,16 +128,9 @@ impl Conv {
         let scale: Vec<f32> = (0..c_out)
             .map(|o| (gamma[o] as f64 / (var[o] as f64 + bn.epsilon).sqrt()) as f32)
             .collect();
-        let mut folded = vec![0f32; k * k * c_in * c_out];
-        for o in 0..c_out {
-            for i in 0..c_in {
-                for ky in 0..k {
-                    for kx in 0..k {
-                        folded[((ky * k + kx) * c_in + i) * c_out + o] =
-                            w[((o * c_in + i) * k + ky) * k + kx] * scale[o];
-                    }
-                }
-            }
+        let mut folded = taps_major(&w, [c_out, c_in, k], false);
+        for (i, v) in folded.iter_mut().enumerate() {
+            *v *= scale[i % c_out];
         }
         let b = (0..c_out)
             .map(|o| (bias[o] - mean[o]) * scale[o] + beta[o])
