@@ -172,7 +172,10 @@ impl Protocol {
                 // each (about 55 sequences/s each since the kernels of 9e8c057, `RAYON_NUM_THREADS=1
                 // rig bench train --speed --size 32x24 --width 8 --batch 16`): 34 minutes of the
                 // 98 measured. The quick demo's models learn normal force in 360 steps; they
-                // learnt shear on their own sensor in 720.
+                // learnt shear on their own sensor in 720. Three epochs (720 steps) were tried on
+                // 2026-11-28 and learnt no shear on the target either (R² ≤ 0 on Fx and Fy for
+                // all 27 models; TransForce Fz 6.2 / 6.8 % of range seen / unseen), so the
+                // scale keeps two.
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
