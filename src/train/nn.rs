@@ -24,7 +24,9 @@ use serde::{Deserialize, Serialize};
 
 mod conv;
 mod fast;
+mod kernels;
 mod norm;
+mod wino;
 pub use conv::conv2d;
 pub use fast::FastEncoder;
 pub use norm::{batch_norm, batch_norm_relu};

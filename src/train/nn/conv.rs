@@ -22,7 +22,8 @@
 //! that copy with overlapping rows ([`three_rows`], as the inference path of [`super::fast`]
 //! does): the forward and the input gradient (the convolution of `dy` with the kernel turned
 //! by 180° and its channels swapped) are three products each, one per kernel row; the weight
-//! gradient of kernel row `ky` is the transpose of that row's left side times `dy`. Images are
+//! gradient of kernel row `ky` is the transpose of that row's left side times `dy`, read from
+//! the bordered copy the forward made (kept in the backward state while training). Images are
 //! shared out over the rayon pool (one product per image on one thread); a batch smaller than
 //! the pool runs its products multi-threaded instead. Transposes are strides handed to `gemm`.
 //!
@@ -32,8 +33,8 @@
 //! The tests check values and all three gradients against burn's on shapes that include padding
 //! wider than the input and strides that skip pixels.
 
-use std::borrow::Cow;
 use std::mem::MaybeUninit;
+use std::sync::Arc;
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -43,9 +44,15 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, Flex, backend_extension};
 use burn::nn::conv::Conv2d;
-use burn::tensor::{DType, Tensor, TensorData};
+use burn::tensor::{DType, Tensor};
 use gemm::Parallelism;
 use rayon::prelude::*;
+
+use super::kernels::{
+    Mat, as_slots, border, border_into, bordered_len, dense, flex, product, sum_of, taps_major,
+    three_rows, unborder, unwritten, written, zeroed,
+};
+use super::wino;
 
 /// The convolution as a backend operation (NCHW, bias, square kernel `k` from the weight's
 /// shape, `stride` and zero padding `pad` on both axes).
@@ -68,30 +75,46 @@ impl TrainConv for Flex {
         stride: usize,
         pad: usize,
     ) -> FlexTensor {
-        let g = Geom::of(&x, &weight, stride, pad);
-        let y = forward(&g, &dense(&x), &dense(&weight), Some(&dense(&bias)));
-        flex(y, [g.n, g.o, g.ho, g.wo])
+        flex_conv(&x, &weight, &bias, stride, pad, false).0
     }
 }
 
-/// The backward step: the state is the forward's input and weight (cheap `Arc` clones).
+/// The forward on the flex backend; with `keep`, also the bordered input of the 3 × 3 path
+/// for the weight gradient ([`forward`]).
+fn flex_conv(
+    x: &FlexTensor,
+    weight: &FlexTensor,
+    bias: &FlexTensor,
+    stride: usize,
+    pad: usize,
+    keep: bool,
+) -> (FlexTensor, Option<Arc<Vec<f32>>>) {
+    let g = Geom::of(x, weight, stride, pad);
+    let (y, kept) = forward(&g, &dense(x), &dense(weight), Some(&dense(bias)), keep);
+    (flex(y, [g.n, g.o, g.ho, g.wo]), kept.map(Arc::new))
+}
+
+/// The backward step: the state is the forward's input and weight (cheap `Arc` clones) and,
+/// for a 3 × 3 layer, the input as the forward bordered it (one copy of the activation held
+/// until the backward pass, instead of a second bordering there).
 #[derive(Debug)]
 struct ConvBackward;
 
 impl Backward<Flex, 3> for ConvBackward {
-    type State = (FlexTensor, FlexTensor, usize, usize);
+    type State = (FlexTensor, FlexTensor, usize, usize, Option<Arc<Vec<f32>>>);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node_x, node_w, node_b] = ops.parents;
         let dy = grads.consume::<Flex>(&ops.node);
-        let (x, weight, stride, pad) = ops.state;
+        let (x, weight, stride, pad, kept) = ops.state;
         let g = Geom::of(&x, &weight, stride, pad);
         let want = Want {
             dx: node_x.is_some(),
             dw: node_w.is_some(),
             db: node_b.is_some(),
         };
-        let d = backward(&g, &dense(&x), &dense(&weight), &dense(&dy), want);
+        let kept = kept.as_deref().map(Vec::as_slice);
+        let d = backward(&g, &dense(&x), kept, &dense(&weight), &dense(&dy), want);
         if let (Some(node), Some(dx)) = (node_x, d.dx) {
             grads.register::<Flex>(node.id, flex(dx, [g.n, g.c, g.h, g.w]));
         }
@@ -112,23 +135,26 @@ impl<C: CheckpointStrategy> TrainConv for Autodiff<Flex, C> {
         stride: usize,
         pad: usize,
     ) -> FloatTensor<Self> {
-        let y = Flex::train_conv2d(
-            x.primitive().clone(),
-            weight.primitive().clone(),
-            bias.primitive().clone(),
-            stride,
-            pad,
-        );
+        let (xp, wp, bp) = (x.primitive(), weight.primitive(), bias.primitive());
         match ConvBackward
             .prepare::<C>([x.node(), weight.node(), bias.node()])
             .compute_bound()
             .stateful()
         {
-            OpsKind::Tracked(prep) => prep.finish(
-                (x.into_primitive(), weight.into_primitive(), stride, pad),
-                y,
-            ),
-            OpsKind::UnTracked(prep) => prep.finish(y),
+            OpsKind::Tracked(prep) => {
+                let (y, kept) = flex_conv(xp, wp, bp, stride, pad, true);
+                prep.finish(
+                    (
+                        x.into_primitive(),
+                        weight.into_primitive(),
+                        stride,
+                        pad,
+                        kept,
+                    ),
+                    y,
+                )
+            }
+            OpsKind::UnTracked(prep) => prep.finish(flex_conv(xp, wp, bp, stride, pad, false).0),
         }
     }
 }
@@ -172,76 +198,6 @@ fn covered(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize, Tensor<1>)> {
 /// extensions of this module and [`super::norm`] are implemented for.
 pub(super) fn on_cpu_kernels<const D: usize>(x: &Tensor<D>) -> bool {
     matches!(x.device().inner().as_dispatch(), DispatchDevice::Flex(_)) && x.dtype() == DType::F32
-}
-
-pub(super) fn dense(t: &FlexTensor) -> Cow<'_, [f32]> {
-    match t.as_slice::<f32>() {
-        Some(s) => Cow::Borrowed(s),
-        None => Cow::Owned(t.to_contiguous().storage::<f32>().to_vec()),
-    }
-}
-
-pub(super) fn flex<const D: usize>(v: Vec<f32>, shape: [usize; D]) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(v, shape))
-}
-
-/// `Σ f(v_i)` in f64, as eight independent partial sums. One running sum is a chain of
-/// dependent additions that the compiler must keep in order (float addition is not
-/// associative), one addition per latency; eight chains let the loop vectorise.
-#[inline]
-pub(super) fn sum_of(v: &[f32], f: impl Fn(f32) -> f64) -> f64 {
-    let mut acc = [0.0f64; 8];
-    let mut chunks = v.chunks_exact(8);
-    for c in &mut chunks {
-        for (a, &x) in acc.iter_mut().zip(c) {
-            *a += f(x);
-        }
-    }
-    let tail: f64 = chunks.remainder().iter().map(|&x| f(x)).sum();
-    acc.iter().sum::<f64>() + tail
-}
-
-/// `n` floats for a kernel that writes every one of them before anything reads it: the
-/// allocation without the zero fill of `vec![0.0; n]`, a pass over memory that would be
-/// overwritten anyway. [`written`] turns it into the vector.
-pub(super) fn unwritten(n: usize) -> Vec<MaybeUninit<f32>> {
-    let mut v = Vec::with_capacity(n);
-    // SAFETY: `MaybeUninit<f32>` is valid uninitialised, and the capacity is `n`.
-    unsafe { v.set_len(n) };
-    v
-}
-
-/// The vector of [`unwritten`], once every element has been written.
-///
-/// # Safety
-/// Every element of `v` must have been initialised.
-pub(super) unsafe fn written(v: Vec<MaybeUninit<f32>>) -> Vec<f32> {
-    let mut v = std::mem::ManuallyDrop::new(v);
-    // SAFETY: `MaybeUninit<f32>` has the layout of `f32`; the caller vouches for the values;
-    // pointer, length and capacity come from a vector whose ownership moves here.
-    unsafe { Vec::from_raw_parts(v.as_mut_ptr().cast::<f32>(), v.len(), v.capacity()) }
-}
-
-/// `out_i = f(a_i, b_i)`, shared out over the rayon pool in blocks.
-pub(super) fn map2(a: &[f32], b: &[f32], f: impl Fn(f32, f32) -> f32 + Sync) -> Vec<f32> {
-    assert_eq!(
-        a.len(),
-        b.len(),
-        "map2: {} against {} values",
-        a.len(),
-        b.len()
-    );
-    const BLOCK: usize = 1 << 14;
-    let mut out = unwritten(a.len());
-    out.par_chunks_mut(BLOCK)
-        .zip(a.par_chunks(BLOCK).zip(b.par_chunks(BLOCK)))
-        .for_each(|(o, (a, b))| {
-            for ((o, &a), &b) in o.iter_mut().zip(a).zip(b) {
-                o.write(f(a, b));
-            }
-        });
-    // SAFETY: the blocks of `out` match those of `a` one to one, each written in full.
-    unsafe { written(out) }
 }
 
 /// The sizes of one convolution.
@@ -399,162 +355,6 @@ fn unrolled<'a>(g: &Geom, x_n: &'a [f32], col: &'a mut Vec<f32>) -> &'a [f32] {
     col
 }
 
-/// A row-major matrix as `gemm` takes it: pointer, column stride, row stride.
-#[derive(Clone, Copy)]
-struct Mat(*const f32, isize, isize);
-
-impl Mat {
-    fn rows(v: &[f32], cols: usize) -> Self {
-        Self(v.as_ptr(), 1, cols as isize)
-    }
-
-    /// The transpose of the row-major `[rows, cols]` matrix in `v`.
-    fn transposed(v: &[f32], cols: usize) -> Self {
-        Self(v.as_ptr(), cols as isize, 1)
-    }
-
-    /// `[rows, cols]` with contiguous rows that start `stride` floats apart, which may be
-    /// fewer than `cols`: the rows then overlap (read only). Checks that `v` holds them all.
-    fn overlapping(v: &[f32], [rows, cols]: [usize; 2], stride: usize) -> Self {
-        assert!(
-            rows == 0 || (rows - 1) * stride + cols <= v.len(),
-            "{rows} rows of {cols} floats {stride} apart do not fit in {}",
-            v.len()
-        );
-        Self(v.as_ptr(), 1, stride as isize)
-    }
-
-    /// This matrix transposed (the same memory).
-    fn t(self) -> Self {
-        Self(self.0, self.2, self.1)
-    }
-}
-
-/// `dst = (accumulate ? dst : 0) + lhs · rhs`, `dst` row-major `[m, n]`.
-fn product(
-    dst: &mut [f32],
-    [m, n, k]: [usize; 3],
-    accumulate: bool,
-    lhs: Mat,
-    rhs: Mat,
-    par: Parallelism,
-) {
-    assert!(dst.len() >= m * n);
-    // SAFETY: `dst` holds `m × n` floats (asserted); every caller builds `lhs` (`m × k`) and
-    // `rhs` (`k × n`) from slices that hold every element their strides reach for that shape
-    // (row-major or transposed slices of at least that many elements, or
-    // `Mat::overlapping`, which checks it), and none of them aliases `dst`.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            n as isize,
-            accumulate,
-            lhs.0,
-            lhs.1,
-            lhs.2,
-            rhs.0,
-            rhs.1,
-            rhs.2,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            par,
-        );
-    }
-}
-
-/// Writes the NCHW image `src` (`c × h × w`) into `dst` channels-last with a zero border of
-/// one pixel, `(h + 2) × (w + 2)` pixels of `c` floats, and two spare zero pixels after them
-/// (the last output row of [`three_rows`] reads them). Only the border is zeroed: the buffer is
-/// reused from image to image.
-fn border(src: &[f32], [c, h, w]: [usize; 3], dst: &mut Vec<f32>) {
-    let wp = w + 2;
-    dst.resize(((h + 2) * wp + 2) * c, 0.0);
-    // The top row and the left pixel of the first image row.
-    dst[..(wp + 1) * c].fill(0.0);
-    // Each image row's right pixel and the next row's left pixel.
-    for y in 0..h {
-        let right = ((y + 1) * wp + 1 + w) * c;
-        dst[right..right + 2 * c].fill(0.0);
-    }
-    // The bottom row after its left pixel, and the spare pixels.
-    dst[((h + 1) * wp + 1) * c..].fill(0.0);
-    for ci in 0..c {
-        for (y, row) in src[ci * h * w..][..h * w].chunks_exact(w).enumerate() {
-            let at = ((y + 1) * wp + 1) * c + ci;
-            for (x, &v) in row.iter().enumerate() {
-                dst[at + x * c] = v;
-            }
-        }
-    }
-}
-
-/// `dst = Σ_ky L_ky · W_ky`, `dst` row-major `[m, n]`: a 3 × 3, stride-1 convolution of the
-/// [`border`]ed channels-last image `pad` (`wp` pixels a row, `c` floats a pixel), computed on
-/// the padded width (`m = h · wp`; the last two columns of each row are discarded). The three
-/// taps of output pixel `p` in kernel row `ky` are the `3c` floats from padded pixel
-/// `p + ky · wp`, so `L_ky` is `pad` itself read with a row stride of `c` (rows overlap), and
-/// `W_ky` is rows `ky · 3c ..` of `w`, `[9c, n]` with rows in (ky, kx, ci) order.
-pub(super) fn three_rows(
-    pad: &[f32],
-    [wp, c, m]: [usize; 3],
-    w: &[f32],
-    n: usize,
-    dst: &mut [f32],
-    par: Parallelism,
-) {
-    let kr = 3 * c;
-    assert_eq!(w.len(), 3 * kr * n, "three_rows: weights of another shape");
-    for ky in 0..3 {
-        let lhs = Mat::overlapping(&pad[ky * wp * c..], [m, kr], c);
-        let rhs = Mat::rows(&w[ky * kr * n..][..kr * n], n);
-        product(dst, [m, n, kr], ky > 0, lhs, rhs, par);
-    }
-}
-
-/// The valid columns of a channels-last product on the padded width (`h × (w + 2)` pixels of
-/// `n` floats) back in NCHW order: `put(channel, index, value)` for every index of `n × h × w`.
-fn unborder(wide: &[f32], [n, h, w]: [usize; 3], mut put: impl FnMut(usize, usize, f32)) {
-    let wp = w + 2;
-    for o in 0..n {
-        for y in 0..h {
-            for x in 0..w {
-                put(o, (o * h + y) * w + x, wide[(y * wp + x) * n + o]);
-            }
-        }
-    }
-}
-
-/// Weights `[o, c, k, k]` with their taps first: `[k²c, o]`, rows in (ky, kx, ci) order, as
-/// [`three_rows`] (for k = 3) and the channels-last products of [`super::fast`] take them; or,
-/// `flipped`, those of the input gradient, the convolution of `dy` with the kernel turned by
-/// 180° and its channels swapped: `[k²o, c]`, `W'[(ky, kx, o), ci] = W[o, ci, k−1−ky, k−1−kx]`.
-pub(super) fn taps_major(w: &[f32], [o, c, k]: [usize; 3], flipped: bool) -> Vec<f32> {
-    let kk = k * k;
-    assert_eq!(w.len(), o * c * kk, "taps_major: weights of another shape");
-    let mut out = vec![0.0f32; kk * c * o];
-    for oo in 0..o {
-        for ci in 0..c {
-            for t in 0..kk {
-                let v = w[(oo * c + ci) * kk + t];
-                let at = if flipped {
-                    ((kk - 1 - t) * o + oo) * c + ci
-                } else {
-                    (t * c + ci) * o + oo
-                };
-                out[at] = v;
-            }
-        }
-    }
-    out
-}
-
 /// Work shared out by image when the batch fills the pool, else each product multi-threaded.
 fn split(n: usize) -> (usize, Parallelism) {
     let threads = rayon::current_num_threads().max(1);
@@ -565,54 +365,132 @@ fn split(n: usize) -> (usize, Parallelism) {
     }
 }
 
-fn forward(g: &Geom, x: &[f32], w: &[f32], b: Option<&[f32]>) -> Vec<f32> {
+/// The convolution's output; with `keep`, also every image as the 3 × 3 path [`border`]ed it
+/// (`n` × [`bordered_len`] floats), which the weight gradient reads again (`None` for the
+/// other paths).
+fn forward(
+    g: &Geom,
+    x: &[f32],
+    w: &[f32],
+    b: Option<&[f32]>,
+    keep: bool,
+) -> (Vec<f32>, Option<Vec<f32>>) {
     let (pix, taps) = (g.pixels(), g.taps());
     let mut y = unwritten(g.n * g.o * pix);
     let (chunk, par) = split(g.n);
     let bias = |o: usize| b.map_or(0.0, |b| b[o]);
     let wk = g.three().then(|| taps_major(w, [g.o, g.c, 3], false));
-    // `col` is the unrolled image, or the bordered one and the product on the padded width.
-    let per_image =
-        |col: &mut Vec<f32>, wide: &mut Vec<f32>, i: usize, y_n: &mut [MaybeUninit<f32>]| {
-            let x_n = &x[i * g.image()..][..g.image()];
-            if let Some(wk) = &wk {
-                let wp = g.w + 2;
-                border(x_n, [g.c, g.h, g.w], col);
-                wide.resize(g.h * wp * g.o, 0.0);
-                three_rows(col, [wp, g.c, g.h * wp], wk, g.o, wide, par);
-                unborder(wide, [g.o, g.h, g.w], |o, at, v| {
-                    y_n[at].write(v + bias(o));
-                });
-                return;
-            }
-            // The bias first; the product adds onto it.
-            for (o, row) in y_n.chunks_mut(pix).enumerate() {
-                row.fill(MaybeUninit::new(bias(o)));
-            }
-            // SAFETY: every element of `y_n` was written just above.
-            let y_n = unsafe { &mut *(y_n as *mut [MaybeUninit<f32>] as *mut [f32]) };
-            let rhs = unrolled(g, x_n, col);
-            product(
-                y_n,
-                [g.o, pix, taps],
-                true,
-                Mat::rows(w, taps),
-                Mat::rows(rhs, pix),
-                par,
+    let per_pad = bordered_len([g.c, g.h, g.w]);
+    let mut kept = (keep && g.three()).then(|| unwritten(g.n * per_pad));
+    // The deep layers' kernels for Winograd, when the layer takes that path.
+    let wino = wk
+        .as_ref()
+        .filter(|_| wino::fits(g.c, g.o, g.h, g.w))
+        .map(|wk| wino::kernels(wk, g.c, g.o));
+    // `col` is the unrolled image, or the bordered one (unless it goes to `slot`, kept) and the
+    // product on the padded width.
+    let per_image = |col: &mut Vec<f32>,
+                     wide: &mut Vec<f32>,
+                     i: usize,
+                     y_n: &mut [MaybeUninit<f32>],
+                     slot: Option<&mut [MaybeUninit<f32>]>| {
+        let x_n = &x[i * g.image()..][..g.image()];
+        if let Some(wk) = &wk {
+            let wp = g.w + 2;
+            let pad: &[f32] = match slot {
+                Some(slot) => border_into(x_n, [g.c, g.h, g.w], slot),
+                None => {
+                    border(x_n, [g.c, g.h, g.w], col);
+                    col
+                }
+            };
+            wide.resize(g.h * wp * g.o, 0.0);
+            three_rows(pad, [wp, g.c, g.h * wp], wk, g.o, wide, par);
+            unborder(wide, [g.o, g.h, g.w], |o, at, v| {
+                y_n[at].write(v + bias(o));
+            });
+            return;
+        }
+        // The bias first; the product adds onto it.
+        for (o, row) in y_n.chunks_mut(pix).enumerate() {
+            row.fill(MaybeUninit::new(bias(o)));
+        }
+        // SAFETY: every element of `y_n` was written just above.
+        let y_n = unsafe { &mut *(y_n as *mut [MaybeUninit<f32>] as *mut [f32]) };
+        let rhs = unrolled(g, x_n, col);
+        product(
+            y_n,
+            [g.o, pix, taps],
+            true,
+            Mat::rows(w, taps),
+            Mat::rows(rhs, pix),
+            par,
+        );
+    };
+    // A group of images through Winograd: bordered (into their kept slots, else `own`), then
+    // convolved together.
+    let winograd = |u: &[f32],
+                    first: usize,
+                    ys: &mut [MaybeUninit<f32>],
+                    mut pads: Option<&mut [MaybeUninit<f32>]>| {
+        let count = ys.len() / (g.o * pix);
+        let group = wino::group(g.h, g.w);
+        let (mut own, mut scratch) = (Vec::new(), wino::Scratch::default());
+        for start in (0..count).step_by(group) {
+            let len = group.min(count - start);
+            let slots = match pads.as_deref_mut() {
+                Some(p) => &mut p[start * per_pad..][..len * per_pad],
+                None => {
+                    own.resize(len * per_pad, 0.0);
+                    as_slots(&mut own[..len * per_pad])
+                }
+            };
+            let imgs: Vec<&[f32]> = slots
+                .chunks_mut(per_pad)
+                .enumerate()
+                .map(|(j, slot)| {
+                    let i = first + start + j;
+                    &*border_into(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], slot)
+                })
+                .collect();
+            let out = &mut ys[start * g.o * pix..][..len * g.o * pix];
+            wino::convolve(
+                &imgs,
+                [g.c, g.h, g.w],
+                u,
+                g.o,
+                &mut scratch,
+                |j, o, at, v| {
+                    out[j * g.o * pix + at].write(v + bias(o));
+                },
             );
-        };
-    y.par_chunks_mut(chunk * g.o * pix)
-        .enumerate()
-        .for_each(|(c, ys)| {
+        }
+    };
+    let worker =
+        |c: usize, ys: &mut [MaybeUninit<f32>], mut pads: Option<&mut [MaybeUninit<f32>]>| {
+            if let Some(u) = &wino {
+                return winograd(u, c * chunk, ys, pads);
+            }
             let (mut col, mut wide) = (Vec::new(), Vec::new());
             for (j, y_n) in ys.chunks_mut(g.o * pix).enumerate() {
-                per_image(&mut col, &mut wide, c * chunk + j, y_n);
+                let slot = pads
+                    .as_deref_mut()
+                    .map(|p| &mut p[j * per_pad..][..per_pad]);
+                per_image(&mut col, &mut wide, c * chunk + j, y_n, slot);
             }
-        });
+        };
+    let ys = y.par_chunks_mut(chunk * g.o * pix).enumerate();
+    match kept.as_mut() {
+        Some(k) => ys
+            .zip(k.par_chunks_mut(chunk * per_pad))
+            .for_each(|((c, ys), pads)| worker(c, ys, Some(pads))),
+        None => ys.for_each(|(c, ys)| worker(c, ys, None)),
+    }
     // SAFETY: the chunks cover `y` and `per_image` writes every element of its image (the
     // 3 × 3 path through `unborder`, which puts every index of `o × h × w`, and here
-    // `ho × wo = h × w`).
-    unsafe { written(y) }
+    // `ho × wo = h × w`); the chunks of `kept` match those of `y` image for image, and
+    // `border_into` writes every element of its slot.
+    unsafe { (written(y), kept.map(|k| written(k))) }
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -628,19 +506,28 @@ struct Grads {
     db: Option<Vec<f32>>,
 }
 
-fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
+/// The gradients; `kept` is the forward's bordered input of the 3 × 3 path (see [`forward`]),
+/// or `None` to border `x` again.
+fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], want: Want) -> Grads {
     let (pix, taps) = (g.pixels(), g.taps());
     let (chunk, par) = split(g.n);
     let dw_len = if want.dw { g.o * taps } else { 0 };
     let db_len = if want.db { g.o } else { 0 };
     // The 3 × 3 path's input-gradient weights (its weight gradient comes out as `[9c, o]`).
     let wd = (g.three() && want.dx).then(|| taps_major(w, [g.o, g.c, 3], true));
+    // The same through Winograd for the deep layers (`o` channels in, `c` out).
+    let wino_d = wd
+        .as_ref()
+        .filter(|_| wino::fits(g.o, g.c, g.h, g.w))
+        .map(|wd| wino::kernels(wd, g.o, g.c));
+    let (per_dy, group) = (bordered_len([g.o, g.h, g.w]), wino::group(g.h, g.w));
     // One worker's images: `first..first + count`, its input-gradient slice if wanted; returns
     // its partial weight and bias gradients.
-    let work = |first: usize, count: usize, mut dx: Option<&mut [f32]>| {
+    let work = |first: usize, count: usize, mut dx: Option<&mut [MaybeUninit<f32>]>| {
         let mut dw = vec![0.0f32; dw_len];
         let mut db = vec![0.0f32; db_len];
         let (mut col, mut dcol, mut wide) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut dgroup, mut pending, mut scratch) = (Vec::new(), 0, wino::Scratch::default());
         for j in 0..count {
             let i = first + j;
             let dy_n = &dy[i * g.o * pix..][..g.o * pix];
@@ -656,21 +543,61 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
                 // zeros in `dcol`).
                 let (wp, kr) = (g.w + 2, 3 * g.c);
                 let m = g.h * wp;
-                border(dy_n, [g.o, g.h, g.w], &mut dcol);
+                // Through Winograd, `dy` is bordered into the next slot of `dgroup`, and the
+                // input gradients of the group are computed together once it is full.
+                let dcol: &[f32] = match &wino_d {
+                    Some(_) => {
+                        dgroup.resize((pending + 1) * per_dy, 0.0);
+                        let slot = &mut dgroup[pending * per_dy..][..per_dy];
+                        border_into(dy_n, [g.o, g.h, g.w], as_slots(slot));
+                        &dgroup[pending * per_dy..][..per_dy]
+                    }
+                    None => {
+                        border(dy_n, [g.o, g.h, g.w], &mut dcol);
+                        &dcol
+                    }
+                };
                 if want.dw {
-                    border(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], &mut col);
+                    let per_pad = bordered_len([g.c, g.h, g.w]);
+                    let pad: &[f32] = match kept {
+                        Some(k) => &k[i * per_pad..][..per_pad],
+                        None => {
+                            border(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], &mut col);
+                            &col
+                        }
+                    };
                     let dy_wide = Mat::rows(&dcol[(wp + 1) * g.o..][..m * g.o], g.o);
                     for ky in 0..3 {
-                        let lhs = Mat::overlapping(&col[ky * wp * g.c..], [m, kr], g.c).t();
+                        let lhs = Mat::overlapping(&pad[ky * wp * g.c..], [m, kr], g.c).t();
                         let dw_ky = &mut dw[ky * kr * g.o..][..kr * g.o];
                         product(dw_ky, [kr, g.o, m], true, lhs, dy_wide, par);
                     }
                 }
-                if let (Some(dx), Some(wd)) = (dx.as_deref_mut(), &wd) {
+                if let (Some(dx), Some(ud)) = (dx.as_deref_mut(), &wino_d) {
+                    pending += 1;
+                    if pending == group || j + 1 == count {
+                        let first_j = j + 1 - pending;
+                        let dys: Vec<&[f32]> = dgroup.chunks(per_dy).take(pending).collect();
+                        let out = &mut dx[first_j * g.image()..][..pending * g.image()];
+                        wino::convolve(
+                            &dys,
+                            [g.o, g.h, g.w],
+                            ud,
+                            g.c,
+                            &mut scratch,
+                            |jj, _, at, v| {
+                                out[jj * g.image() + at].write(v);
+                            },
+                        );
+                        pending = 0;
+                    }
+                } else if let (Some(dx), Some(wd)) = (dx.as_deref_mut(), &wd) {
                     let dx_n = &mut dx[j * g.image()..][..g.image()];
                     wide.resize(m * g.c, 0.0);
-                    three_rows(&dcol, [wp, g.o, m], wd, g.c, &mut wide, par);
-                    unborder(&wide, [g.c, g.h, g.w], |_, at, v| dx_n[at] = v);
+                    three_rows(dcol, [wp, g.o, m], wd, g.c, &mut wide, par);
+                    unborder(&wide, [g.c, g.h, g.w], |_, at, v| {
+                        dx_n[at].write(v);
+                    });
                 }
                 continue;
             }
@@ -686,7 +613,7 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
                 );
             }
             if let Some(dx) = dx.as_deref_mut() {
-                let dx_n = &mut dx[j * g.image()..][..g.image()];
+                let dx_n = zeroed(&mut dx[j * g.image()..][..g.image()]);
                 let wt = Mat::transposed(w, taps);
                 if g.direct() {
                     product(dx_n, [g.c, pix, g.o], false, wt, Mat::rows(dy_n, pix), par);
@@ -706,7 +633,8 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
         }
         (dw, db)
     };
-    let mut dx = want.dx.then(|| vec![0.0f32; g.n * g.image()]);
+    // Not zeroed here, on the calling thread: each worker writes its images in full.
+    let mut dx = want.dx.then(|| unwritten(g.n * g.image()));
     let parts: Vec<(Vec<f32>, Vec<f32>)> = match dx.as_mut() {
         Some(dx) => dx
             .par_chunks_mut(chunk * g.image())
@@ -729,18 +657,24 @@ fn backward(g: &Geom, x: &[f32], w: &[f32], dy: &[f32], want: Want) -> Grads {
     }
     if g.three() && want.dw {
         // `[9c, o]` in (ky, kx, ci) order back to the weight's `[o, c, 3, 3]`.
-        let mut out = vec![0.0f32; dw.len()];
-        for oo in 0..g.o {
-            for ci in 0..g.c {
-                for t in 0..9 {
-                    out[(oo * g.c + ci) * 9 + t] = dw[(t * g.c + ci) * g.o + oo];
+        let mut out = unwritten(dw.len());
+        out.par_chunks_mut((g.c * 9).max(1))
+            .enumerate()
+            .for_each(|(oo, kernel)| {
+                for (ci, taps) in kernel.chunks_exact_mut(9).enumerate() {
+                    for (t, v) in taps.iter_mut().enumerate() {
+                        v.write(dw[(t * g.c + ci) * g.o + oo]);
+                    }
                 }
-            }
-        }
-        dw = out;
+            });
+        // SAFETY: the `o` kernels of `9c` floats cover `out`, each written in full.
+        dw = unsafe { written(out) };
     }
     Grads {
-        dx,
+        // SAFETY: the chunks cover `dx`, and `work` writes every element of each image it is
+        // given: the 3 × 3 path through `unborder` (every index of `c × h × w`), the others
+        // zero the image first (`zeroed`).
+        dx: dx.map(|v| unsafe { written(v) }),
         dw: want.dw.then_some(dw),
         db: want.db.then_some(db),
     }
@@ -816,6 +750,13 @@ mod tests {
         // a multiple of the vector width, more channels out than in and the reverse.
         check(2, 5, 16, [1, 9], 3, 1, 1);
         check(4, 16, 8, [6, 16], 3, 1, 1);
+        // Winograd's channel counts: more out than in, the reverse, one 2 × 2 block, and an
+        // odd size (direct); the batch of 5 splits unevenly over the workers.
+        check(5, 32, 40, [6, 8], 3, 1, 1);
+        check(2, 48, 32, [2, 2], 3, 1, 1);
+        check(2, 32, 32, [5, 6], 3, 1, 1);
+        // Larger images: Winograd's groups hold one image each.
+        check(3, 32, 32, [32, 34], 3, 1, 1);
         // Input exactly the kernel's size, no padding: one output pixel.
         check(2, 3, 2, [3, 3], 3, 1, 0);
     }

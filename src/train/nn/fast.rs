@@ -27,7 +27,7 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use gemm::Parallelism;
 
-use super::conv::{taps_major, three_rows};
+use super::kernels::{taps_major, three_rows};
 use super::{Encoder, ResUnit};
 
 /// One convolution with its batch norm folded in.

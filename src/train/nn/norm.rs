@@ -39,7 +39,8 @@ use burn::tensor::Tensor;
 use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
-use super::conv::{dense, flex, map2, on_cpu_kernels, sum_of, unwritten, written};
+use super::conv::on_cpu_kernels;
+use super::kernels::{dense, flex, map2, sum_of, unwritten, written};
 
 /// A training batch norm's output and the batch statistics it used.
 #[derive(ExtensionType)]
