@@ -131,11 +131,14 @@ fn unpatch(n: usize, m: &[f32], top: &mut [f32], bottom: &mut [f32]) {
 /// out: `(h + 2) × (w + 2)` pixels of `c` floats, channels last) with the kernels `u` of
 /// [`kernels`] (`n` outputs), no bias: `put(image, channel, index, value)` for every index
 /// `(channel · h + y) · w + x` of each image's `n × h × w` output. `h` and `w` must be even.
+/// `par`: the products' threads (one, when the caller shares images out over the pool).
+#[allow(clippy::too_many_arguments)]
 pub(super) fn convolve(
     pads: &[&[f32]],
     [c, h, w]: [usize; 3],
     u: &[f32],
     n: usize,
+    par: Parallelism,
     scratch: &mut Scratch,
     mut put: impl FnMut(usize, usize, usize, f32),
 ) {
@@ -200,7 +203,7 @@ pub(super) fn convolve(
                 false,
                 false,
                 false,
-                Parallelism::None,
+                par,
             );
         }
     }
@@ -220,6 +223,116 @@ pub(super) fn convolve(
         for o in 0..n {
             for p in 0..h * w {
                 put(j, o, o * h * w + p, scratch.y[p * n + o]);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::nn::kernels::{border, taps_major};
+
+    /// Uniform in `[-1, 1)` from a fixed linear congruential sequence.
+    fn uniform(state: &mut u64) -> f32 {
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    }
+
+    /// The largest error of Winograd's output over `Σ|w||x|` of the same output (the scale of
+    /// any summation's rounding), against the exact sum in f64: one image `c × h × w` with
+    /// entries `offset + U(-1, 1)`, weights `U(-1, 1)`.
+    fn relative_error(c: usize, o: usize, [h, w]: [usize; 2], offset: f32) -> f64 {
+        let mut s = 7u64;
+        let x: Vec<f32> = (0..c * h * w).map(|_| offset + uniform(&mut s)).collect();
+        let wt: Vec<f32> = (0..o * c * 9).map(|_| uniform(&mut s)).collect();
+        let u = kernels(&taps_major(&wt, [o, c, 3], false), c, o);
+        let mut pad = Vec::new();
+        border(&x, [c, h, w], &mut pad);
+        let mut got = vec![f32::NAN; o * h * w];
+        let mut scratch = Scratch::default();
+        convolve(
+            &[&pad],
+            [c, h, w],
+            &u,
+            o,
+            Parallelism::None,
+            &mut scratch,
+            |j, _, at, v| {
+                assert_eq!(j, 0);
+                got[at] = v;
+            },
+        );
+        let mut worst = 0.0f64;
+        for oo in 0..o {
+            for y in 0..h {
+                for xx in 0..w {
+                    let (mut exact, mut scale) = (0.0f64, 0.0f64);
+                    for ci in 0..c {
+                        for ky in 0..3 {
+                            for kx in 0..3 {
+                                let (yy, xi) = (y + ky, xx + kx);
+                                if yy < 1 || yy > h || xi < 1 || xi > w {
+                                    continue;
+                                }
+                                let a = x[(ci * h + yy - 1) * w + xi - 1] as f64;
+                                let b = wt[((oo * c + ci) * 3 + ky) * 3 + kx] as f64;
+                                exact += a * b;
+                                scale += (a * b).abs();
+                            }
+                        }
+                    }
+                    let v = got[(oo * h + y) * w + xx] as f64;
+                    assert!(v.is_finite(), "output {oo} {y} {xx} not written");
+                    worst = worst.max((v - exact).abs() / scale);
+                }
+            }
+        }
+        worst
+    }
+
+    #[test]
+    fn winograd_stays_within_f32_rounding_of_the_exact_sum_even_under_a_large_offset() {
+        // The transforms' row sums are at most 2 (Bᵀ), 1.5 (G) and 3 (Aᵀ), so a value can grow
+        // by at most 2² · 1.5² · 3² = 81 between its rounding and the output: errors of order
+        // 81 ε ≈ 1e-5 of Σ|w||x|, whatever the channels' count (each product adds a term's
+        // worth). A common offset of 1000 (inputs far from zero, where the patch transform's
+        // differences cancel) must not break that.
+        for (offset, what) in [(0.0f32, "centred"), (1000.0, "offset by 1000")] {
+            for (c, o, hw) in [(32, 32, [6, 8]), (64, 40, [4, 4]), (32, 48, [2, 10])] {
+                let e = relative_error(c, o, hw, offset);
+                assert!(
+                    e < 81.0 * f32::EPSILON as f64,
+                    "{what}, {c} → {o} at {hw:?}: error {e:e} of Σ|w||x|"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_kernel_transform_is_g_g_g_transposed() {
+        // One channel pair, g = [[1, 2, 3], [4, 5, 6], [7, 8, 9]] (ky, kx): G g Gᵀ by hand.
+        let wk: Vec<f32> = (1..=9).map(|v| v as f32).collect();
+        let u = kernels(&wk, 1, 1);
+        // G g (4 × 3): rows g0, (g0 + g1 + g2)/2, (g0 − g1 + g2)/2, g2.
+        let gg = [
+            [1.0, 2.0, 3.0],
+            [6.0, 7.5, 9.0],
+            [2.0, 2.5, 3.0],
+            [7.0, 8.0, 9.0],
+        ];
+        for a in 0..4 {
+            let r = gg[a];
+            let want = [
+                r[0],
+                (r[0] + r[1] + r[2]) / 2.0,
+                (r[0] - r[1] + r[2]) / 2.0,
+                r[2],
+            ];
+            for b in 0..4 {
+                assert_eq!(u[a * 4 + b], want[b], "U[{a}][{b}]");
             }
         }
     }
