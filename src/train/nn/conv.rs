@@ -542,15 +542,15 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                 }
             }
             if g.three() {
-                // `dcol` holds `dy` bordered: the input gradient is the convolution of `dy`
+                // `dyb` holds `dy` bordered: the input gradient is the convolution of `dy`
                 // with the turned kernel (`wd`), and the weight gradient for kernel row `ky` is
                 // `L_kyᵀ · dy` on the padded width (whose discarded columns are the border's
-                // zeros in `dcol`).
+                // zeros in `dyb`).
                 let (wp, kr) = (g.w + 2, 3 * g.c);
                 let m = g.h * wp;
                 // Through Winograd, `dy` is bordered into the next slot of `dgroup`, and the
                 // input gradients of the group are computed together once it is full.
-                let dcol: &[f32] = match &wino_d {
+                let dyb: &[f32] = match &wino_d {
                     Some(_) => {
                         dgroup.resize((pending + 1) * per_dy, 0.0);
                         let slot = &mut dgroup[pending * per_dy..][..per_dy];
@@ -571,7 +571,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                             &col
                         }
                     };
-                    let dy_wide = Mat::rows(&dcol[(wp + 1) * g.o..][..m * g.o], g.o);
+                    let dy_wide = Mat::rows(&dyb[(wp + 1) * g.o..][..m * g.o], g.o);
                     for ky in 0..3 {
                         let lhs = Mat::overlapping(&pad[ky * wp * g.c..], [m, kr], g.c).t();
                         let dw_ky = &mut dw[ky * kr * g.o..][..kr * g.o];
@@ -600,7 +600,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                 } else if let (Some(dx), Some(wd)) = (dx.as_deref_mut(), &wd) {
                     let dx_n = &mut dx[j * g.image()..][..g.image()];
                     wide.resize(m * g.c, 0.0);
-                    three_rows(dcol, [wp, g.o, m], wd, g.c, &mut wide, par);
+                    three_rows(dyb, [wp, g.o, m], wd, g.c, &mut wide, par);
                     unborder(&wide, [g.c, g.h, g.w], |_, at, v| {
                         dx_n[at].write(v);
                     });
