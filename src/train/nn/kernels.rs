@@ -129,11 +129,24 @@ pub(super) fn product(
     rhs: Mat,
     par: Parallelism,
 ) {
-    assert!(dst.len() >= m * n);
-    // SAFETY: `dst` holds `m × n` floats (asserted); every caller builds `lhs` (`m × k`) and
-    // `rhs` (`k × n`) from slices that hold every element their strides reach for that shape
-    // (row-major or transposed slices of at least that many elements, or
-    // `Mat::overlapping`, which checks it), and none of them aliases `dst`.
+    product_into(dst, n, [m, n, k], accumulate, lhs, rhs, par);
+}
+
+/// [`product`] into `m` rows of `n` floats that start `stride` floats apart in `dst`.
+pub(super) fn product_into(
+    dst: &mut [f32],
+    stride: usize,
+    [m, n, k]: [usize; 3],
+    accumulate: bool,
+    lhs: Mat,
+    rhs: Mat,
+    par: Parallelism,
+) {
+    assert!(stride >= n && (m == 0 || (m - 1) * stride + n <= dst.len()));
+    // SAFETY: `dst` holds the `m` rows of `n` floats `stride` apart (asserted); every caller
+    // builds `lhs` (`m × k`) and `rhs` (`k × n`) from slices that hold every element their
+    // strides reach for that shape (row-major or transposed slices of at least that many
+    // elements, or `Mat::overlapping`, which checks it), and none of them aliases `dst`.
     unsafe {
         gemm::gemm(
             m,
@@ -141,7 +154,7 @@ pub(super) fn product(
             k,
             dst.as_mut_ptr(),
             1,
-            n as isize,
+            stride as isize,
             accumulate,
             lhs.0,
             lhs.1,

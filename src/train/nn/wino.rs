@@ -20,6 +20,8 @@
 
 use gemm::Parallelism;
 
+use super::kernels::{Mat, product_into};
+
 /// The fewest input and output channels a layer needs to go through Winograd: below it the
 /// products over the channels are too short for the saved multiplications to pay for the
 /// transforms (measured: `rig bench train --speed`).
@@ -178,34 +180,15 @@ pub(super) fn convolve(
         }
     }
     for k in 0..16 {
-        let (v, m) = (&scratch.v[k * c..], &mut scratch.m[k * n..]);
-        assert!(v.len() >= (t - 1) * 16 * c + c && m.len() >= (t - 1) * 16 * n + n);
-        // SAFETY: `m` holds rows `0..t` of `n` floats, `16n` apart (asserted); `v` rows of `c`
-        // floats `16c` apart (asserted); `u`'s position `k` is a row-major `[c, n]` slice
-        // (its length asserted above); `m` is a buffer of its own, aliasing neither.
-        unsafe {
-            gemm::gemm(
-                t,
-                n,
-                c,
-                m.as_mut_ptr(),
-                1,
-                (16 * n) as isize,
-                false,
-                v.as_ptr(),
-                1,
-                (16 * c) as isize,
-                u[k * c * n..].as_ptr(),
-                1,
-                n as isize,
-                1.0,
-                1.0,
-                false,
-                false,
-                false,
-                par,
-            );
-        }
+        product_into(
+            &mut scratch.m[k * n..],
+            16 * n,
+            [t, n, c],
+            false,
+            Mat::overlapping(&scratch.v[k * c..], [t, c], 16 * c),
+            Mat::rows(&u[k * c * n..][..c * n], n),
+            par,
+        );
     }
     for j in 0..pads.len() {
         for by in 0..th {
