@@ -45,6 +45,7 @@ impl Default for TranslateConfig {
                 ndf: 16,
                 res_blocks: 6,
                 disc_layers: 3,
+                down: 2,
             },
             lambda_adv: 1.0,
             lambda_cyc: 10.0,
@@ -318,9 +319,12 @@ pub fn translate(
     if target.spec != spec {
         bail!("source and target images must share one size and modality");
     }
-    if !spec.width.is_multiple_of(4) || !spec.height.is_multiple_of(4) {
+    let m = 1u32 << cfg.shape.down;
+    if !spec.width.is_multiple_of(m) || !spec.height.is_multiple_of(m) {
         bail!(
-            "image width and height must be multiples of 4 for the generator (got {}×{})",
+            "image width and height must be multiples of {m} for the generator's {} \
+             downsamplings (got {}×{})",
+            cfg.shape.down,
             spec.width,
             spec.height
         );
@@ -570,6 +574,7 @@ mod tests {
                 ndf: 4,
                 res_blocks: 1,
                 disc_layers: 2,
+                down: 2,
             },
             ..TranslateConfig::default()
         };

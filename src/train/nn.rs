@@ -63,6 +63,18 @@ pub struct GanShape {
     pub ndf: usize,
     pub res_blocks: usize,
     pub disc_layers: usize,
+    /// The generator's stride-2 downsamplings before its residual blocks (and as many
+    /// upsamplings after them). The reference has 2, made for 256 px images, whose residual
+    /// blocks then work on 64 × 64 maps. On a 32 × 24 image two leave an 8 × 6 map, coarser than
+    /// the markers' 3 px pitch, so the generator has to redraw every marker from a summary; one
+    /// keeps a 16 × 12 map. Image sides must be multiples of 2^down. Translators saved before
+    /// the field existed had 2.
+    #[serde(default = "reference_downsamplings")]
+    pub down: usize,
+}
+
+fn reference_downsamplings() -> usize {
+    2
 }
 
 #[derive(Module, Debug)]
@@ -106,7 +118,7 @@ pub struct UpBlock {
 }
 
 /// ResNet-block generator: RGB in [-1, 1] to RGB in [-1, 1], same size (height and width must be
-/// multiples of 4).
+/// multiples of 2^[`GanShape::down`]).
 #[derive(Module, Debug)]
 pub struct Generator {
     stem: Conv2d,
@@ -120,15 +132,19 @@ pub struct Generator {
 impl Generator {
     pub fn new(shape: &GanShape, dev: &Device) -> Self {
         let k = shape.ngf.max(1);
-        let down = [(k, 2 * k), (2 * k, 4 * k)]
-            .into_iter()
-            .map(|(a, b)| DownBlock {
-                conv: conv(a, b, 3, 2, 1, dev),
-                norm: inorm(b, dev),
+        // Channels double at each downsampling and halve again on the way up.
+        let widths: Vec<usize> = (0..=shape.down).map(|i| k << i).collect();
+        let down = widths
+            .windows(2)
+            .map(|w| DownBlock {
+                conv: conv(w[0], w[1], 3, 2, 1, dev),
+                norm: inorm(w[1], dev),
             })
             .collect();
-        let up = [(4 * k, 2 * k), (2 * k, k)]
-            .into_iter()
+        let up = widths
+            .windows(2)
+            .rev()
+            .map(|w| (w[1], w[0]))
             .map(|(a, b)| UpBlock {
                 conv: ConvTranspose2dConfig::new([a, b], [3, 3])
                     .with_stride([2, 2])
@@ -143,7 +159,7 @@ impl Generator {
             stem_norm: inorm(k, dev),
             down,
             blocks: (0..shape.res_blocks)
-                .map(|_| ResBlock::new(4 * k, dev))
+                .map(|_| ResBlock::new(widths[shape.down], dev))
                 .collect(),
             up,
             head: conv(k, 3, 7, 1, 0, dev),
@@ -652,6 +668,17 @@ mod tests {
     }
 
     #[test]
+    fn a_gan_shape_saved_before_down_existed_reads_as_the_reference_two() {
+        let old = r#"{"ngf":8,"ndf":8,"res_blocks":2,"disc_layers":2}"#;
+        let shape: GanShape = serde_json::from_str(old).unwrap();
+        assert_eq!(shape.down, 2);
+        let new: GanShape =
+            serde_json::from_str(&serde_json::to_string(&GanShape { down: 1, ..shape }).unwrap())
+                .unwrap();
+        assert_eq!(new.down, 1);
+    }
+
+    #[test]
     fn networks_keep_their_shapes() {
         let d = dev();
         let gan = GanShape {
@@ -659,12 +686,17 @@ mod tests {
             ndf: 4,
             res_blocks: 1,
             disc_layers: 2,
+            down: 2,
         };
         let x = Tensor::<4>::zeros([2, 3, 24, 32], &d);
-        assert_eq!(
-            Generator::new(&gan, &d).forward(x.clone()).dims(),
-            [2, 3, 24, 32]
-        );
+        for down in 0..=3 {
+            let g = Generator::new(&GanShape { down, ..gan }, &d);
+            assert_eq!(g.forward(x.clone()).dims(), [2, 3, 24, 32], "down {down}");
+            // The residual blocks work at 1/2^down of the image, on ngf · 2^down channels.
+            let c = 4 << down;
+            assert_eq!(g.blocks[0].conv1.weight.dims(), [c, c, 3, 3], "down {down}");
+            assert_eq!((g.down.len(), g.up.len()), (down, down));
+        }
         let score = Discriminator::new(&gan, &d).forward(x).dims();
         assert_eq!(score[..2], [2, 1]);
         for depth in Depth::ALL {

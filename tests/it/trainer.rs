@@ -127,6 +127,7 @@ fn a_cyclegan_step_lowers_the_cycle_loss_on_a_fixed_batch() {
             ndf: 4,
             res_blocks: 1,
             disc_layers: 2,
+            down: 2,
         },
         lr: 2e-3,
         pool: 4,

@@ -138,6 +138,7 @@ fn run_speed(args: &TrainBenchArgs) -> anyhow::Result<()> {
                 ndf: ngf,
                 res_blocks: blocks,
                 disc_layers: 3,
+                down: 2,
             },
             batch,
             ..TranslateConfig::default()
