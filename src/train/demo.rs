@@ -61,8 +61,10 @@ impl DemoPlan {
                 // and 0.65 on R, where only the contact's position and its history tell it), but
                 // this small CycleGAN cannot redraw the source's 0.9 mm grid as the target's
                 // jittered 1.1 mm hexagons moving with the gel, and every quick model's shear on
-                // the target stays near zero (R² Fx, Fy ≤ 0.1), so which one wins on Fx and Fy
-                // is chance. Normal force does transfer, better from R+M: on one recorded set,
+                // sim-target stays near zero (R² Fx, Fy ≤ 0.1). With the reference generator
+                // which one won on Fx and Fy was chance; with one downsampling (`translate`
+                // below) TransForce predicts less spurious shear than source-only and wins them
+                // by ×1.7 or more (the demo test). Normal force does transfer, better from R+M: on one recorded set,
                 // TransForce Fz 0.31 N against source-only 1.51 (R: 0.55 against 3.24; in CI's
                 // run on R, 0.49 against 0.75). The full demo and `rig reproduce` run all three.
                 modalities: vec![Modality::RgbMarker],

@@ -2,15 +2,17 @@
 //! translate, train TransForce, its no-LSTM control and the source-only baseline, evaluate on the
 //! target sensor. The table must be written, translation must bring the source images closer to
 //! the target's (colour statistics; and Inception FID when CI has fetched the weights), and
-//! TransForce must beat source-only on the target on normal force and on the force magnitude,
-//! with a positive R² on Fz (it learnt normal force through the translation; source-only,
-//! trained on the source sensor's colours, has not).
+//! TransForce must beat source-only on the target on every axis and on the force magnitude, with
+//! a positive R² on Fz over all frames and on the unseen indenter alone (it learnt normal force
+//! through the translation; source-only, trained on the source sensor's colours, has not).
 //!
-//! Shear is printed, not asserted: at the quick demo's scale no model transfers it to the
-//! target (R² Fx, Fy about 0 for every method; see `DemoPlan::new`), so the winner on Fx and Fy
-//! is chance. Source-only beat TransForce on Fy in 3 of the last 7 runs, CI's included, which
-//! made this test fail about one run in three. Issue 17 asks for every axis; that needs a
-//! translator that redraws the target's markers where the gel moved them.
+//! What the shear assertion shows, and what it does not: at the quick demo's scale no model on
+//! sim-target learns shear through the translation (R² Fx, Fy ≤ 0; see `DemoPlan::new`).
+//! TransForce wins Fx and Fy because it predicts little shear where source-only predicts shear
+//! that is not there: 0.13-0.16 N against 0.25-0.31 N (all frames) in the two release runs
+//! with the one-downsampling generator (2026-11-28), where with the reference generator's two
+//! downsamplings source-only won Fy in 3 of 7 runs. The same runs gave unseen R² Fz 0.71 and
+//! 0.75 (0.33, 0.10 and -0.16 before).
 
 use std::process::Command;
 
@@ -60,10 +62,26 @@ fn the_quick_demo_runs_the_whole_story_and_transforce_beats_source_only() {
         t < s,
         "Fz: TransForce MAE {t:.3} N is not below source-only {s:.3} N\n{md}"
     );
+    for (a, axis) in [(0, "Fx"), (1, "Fy")] {
+        let (t, s) = (mae(tf, a), mae(so, a));
+        assert!(
+            t < s,
+            "{axis}: TransForce MAE {t:.3} N is not below source-only {s:.3} N\n{md}"
+        );
+    }
     let r2 = tf["r2"][2].as_f64().unwrap();
     assert!(
         r2 > 0.0,
         "Fz: TransForce R² {r2:.3} on the target: no better than its mean\n{md}"
+    );
+    let unseen = rows
+        .iter()
+        .find(|r| r["method"] == "TransForce" && r["group"] == "unseen")
+        .unwrap_or_else(|| panic!("no TransForce row for the unseen group:\n{md}"));
+    let r2 = unseen["r2"][2].as_f64().unwrap();
+    assert!(
+        r2 > 0.0,
+        "Fz: TransForce R² {r2:.3} on the unseen indenter: no better than its mean\n{md}"
     );
     let (t, s) = (
         tf["total_mae"].as_f64().unwrap(),
@@ -74,13 +92,6 @@ fn the_quick_demo_runs_the_whole_story_and_transforce_beats_source_only() {
         "|F|: TransForce MAE {t:.3} N is not below source-only {s:.3} N\n{md}"
     );
     eprintln!("{md}");
-    for (a, axis) in [(0, "Fx"), (1, "Fy")] {
-        eprintln!(
-            "{axis} (not asserted): TransForce MAE {:.3} N, source-only {:.3} N",
-            mae(tf, a),
-            mae(so, a)
-        );
-    }
     assert!(stdout.contains("TransForce beats source-only"), "{stdout}");
 
     // Translation brings the source images towards the target's (seen group): in colour
