@@ -319,16 +319,7 @@ pub fn translate(
     if target.spec != spec {
         bail!("source and target images must share one size and modality");
     }
-    let m = 1u32 << cfg.shape.down;
-    if !spec.width.is_multiple_of(m) || !spec.height.is_multiple_of(m) {
-        bail!(
-            "image width and height must be multiples of {m} for the generator's {} \
-             downsamplings (got {}×{})",
-            cfg.shape.down,
-            spec.width,
-            spec.height
-        );
-    }
+    fits_generator(&cfg.shape, &spec)?;
     let n_s: usize = source.trajectories.iter().map(|t| t.frames).sum();
     let n_t: usize = target.trajectories.iter().map(|t| t.frames).sum();
     if n_s == 0 || n_t == 0 {
@@ -431,6 +422,31 @@ fn through(g: &Generator, source: &LabelledSet, dev: &Device) -> anyhow::Result<
     source.with_images(spec, trajs)
 }
 
+/// Whether `spec`'s images fit a generator of `shape`: each side a multiple of 2^down (a
+/// saved translator's description is read from a file, so `down` is checked, not trusted).
+fn fits_generator(shape: &GanShape, spec: &ImageSpec) -> anyhow::Result<()> {
+    let m = u32::try_from(shape.down)
+        .ok()
+        .filter(|&d| d <= 8)
+        .map(|d| 1u32 << d)
+        .with_context(|| {
+            format!(
+                "a generator with {} downsamplings: at most 8 are supported",
+                shape.down
+            )
+        })?;
+    if !spec.width.is_multiple_of(m) || !spec.height.is_multiple_of(m) {
+        bail!(
+            "image width and height must be multiples of {m} for the generator's {} \
+             downsamplings (got {}×{})",
+            shape.down,
+            spec.width,
+            spec.height
+        );
+    }
+    Ok(())
+}
+
 /// The source images of `source` in the target's style, through the translator that
 /// [`translate`] saved in `tdir` (its `translator/` directory): for source frames it was not
 /// trained on, e.g. the unseen indenters'. The set must have the translator's image spec.
@@ -455,6 +471,7 @@ pub fn apply_translator(tdir: &Path, source: &LabelledSet) -> anyhow::Result<Lab
             source.spec.modality.name()
         );
     }
+    fits_generator(&info.config.shape, &info.spec)?;
     let dev = g_device(&super::force::device());
     let mut g = Generator::new(&info.config.shape, &dev);
     g.load_from(&mut SafetensorsStore::from_file(
@@ -564,6 +581,31 @@ mod tests {
         let mut c = Collect(Vec::new());
         m.visit(&mut c);
         c.0
+    }
+
+    #[test]
+    fn image_sides_must_divide_by_the_generators_downsamplings_and_a_bad_count_is_an_error() {
+        let spec = |width, height| ImageSpec {
+            width,
+            height,
+            modality: crate::train::modality::Modality::RgbMarker,
+        };
+        let shape = |down| GanShape {
+            ngf: 4,
+            ndf: 4,
+            res_blocks: 1,
+            disc_layers: 2,
+            down,
+        };
+        assert!(fits_generator(&shape(3), &spec(32, 24)).is_ok());
+        assert!(fits_generator(&shape(0), &spec(33, 25)).is_ok());
+        let e = fits_generator(&shape(4), &spec(32, 24)).unwrap_err();
+        assert!(e.to_string().contains("multiples of 16"), "{e}");
+        // A description read from a damaged file: an error, not an overflowing shift.
+        for down in [9, 64, usize::MAX] {
+            let e = fits_generator(&shape(down), &spec(32, 24)).unwrap_err();
+            assert!(e.to_string().contains("at most 8"), "{e}");
+        }
     }
 
     #[test]
