@@ -9,10 +9,10 @@
 //! What the shear assertion shows, and what it does not: at the quick demo's scale no model on
 //! sim-target learns shear through the translation (R² Fx, Fy ≤ 0; see `DemoPlan::new`).
 //! TransForce wins Fx and Fy because it predicts little shear where source-only predicts shear
-//! that is not there: 0.13-0.16 N against 0.25-0.31 N (all frames) in the two release runs
-//! with the one-downsampling generator (2026-11-28), where with the reference generator's two
-//! downsamplings source-only won Fy in 3 of 7 runs. The same runs gave unseen R² Fz 0.71 and
-//! 0.75 (0.33, 0.10 and -0.16 before).
+//! that is not there: 0.13-0.16 N against 0.20-0.78 N (all frames), ×1.4 or more, in four
+//! runs with the one-downsampling generator (2026-11-28; one of them with twice the translator
+//! iterations), where with the reference generator's two downsamplings source-only won Fy in 3
+//! of 7 runs. The same runs gave unseen R² Fz 0.53-0.78 (0.33, 0.10 and -0.16 before).
 
 use std::process::Command;
 
