@@ -65,8 +65,9 @@ impl DemoPlan {
                 // which one won on Fx and Fy was chance; with one downsampling (`translate`
                 // below) TransForce predicts less spurious shear than source-only and wins them
                 // by ×1.4 or more (the demo test). Normal force does transfer, better from R+M:
-                // on one recorded set, TransForce Fz 0.31 N against source-only 1.51 (R: 0.55 against 3.24; in CI's
-                // run on R, 0.49 against 0.75). The full demo and `rig reproduce` run all three.
+                // on one recorded set, TransForce Fz 0.31 N against source-only 1.51 (R: 0.55
+                // against 3.24; in CI's run on R, 0.49 against 0.75). The full demo and
+                // `rig reproduce` run all three.
                 modalities: vec![Modality::RgbMarker],
                 translate: TranslateConfig {
                     shape: GanShape {
