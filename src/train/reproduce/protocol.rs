@@ -17,8 +17,8 @@ use crate::train::nn::Depth;
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size meant for 2 CPU cores in under two hours (98 min measured end
-    /// to end on 2 cores on 2026-11-28, 34 of them training; README, Commands).
+    /// The whole split at a size meant for 2 CPU cores in under two hours (69 min on 2 cores on
+    /// 2026-11-28, 28.5 of them FID; README, Commands).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
