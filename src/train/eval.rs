@@ -432,8 +432,10 @@ pub fn fid_notes(net: &Result<Inception, String>, rows: &[FidRow], cfg: &FidConf
         .min()
     {
         notes.push(format!(
-            "KID subsets are smaller than the reference {} (as small as {m}) because the image samples are (at most {} per set and group); FID from fewer than 2048 images is biased upward, so compare rows with equal n.",
-            cfg.kid_subset_size, cfg.max_images
+            "KID subsets are smaller than the reference {} (as small as {m}) because the image samples are (at most {} per set and group); FID from fewer than {} images is biased upward, so compare rows with equal n.",
+            cfg.kid_subset_size,
+            cfg.max_images,
+            inception::FEATURE_DIM
         ));
     }
     notes

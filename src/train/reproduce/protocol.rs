@@ -9,6 +9,7 @@ use crate::train::data::{PAPER_EXCLUDED, PAPER_UNSEEN, Split};
 use crate::train::demo::{DemoPlan, sized_camera};
 use crate::train::eval::FidConfig;
 use crate::train::force::ForceConfig;
+use crate::train::inception::FEATURE_DIM;
 use crate::train::modality::Modality;
 use crate::train::nn::Depth;
 
@@ -103,11 +104,11 @@ impl Protocol {
                 spec: (32, 24),
                 modalities: Modality::ALL.to_vec(),
                 seeds: vec![1, 2, 3],
-                // 3000 iterations (12 epochs of 250), twice the quick demo's rate of epochs. With
-                // 1500 the protocol gave FID ×0.39 / ×0.29 and TransForce Fz 5.2 / 5.5 % of range
-                // (seen / unseen, 2026-11-28); with 3000, on the same recordings, ×0.36 / ×0.27 at
-                // 256 images and 4.6 / 5.1 %, for about 4 more minutes (twice the iterations
-                // gave the quick demo ×0.31 against ×0.35 too).
+                // 3000 iterations (12 epochs of 250). With 1500 the protocol gave FID ×0.39 /
+                // ×0.29 and TransForce Fz 5.2 / 5.5 % of range (seen / unseen, 2026-11-28); with
+                // 3000, on the same recordings, ×0.36 / ×0.27 at 256 images and 4.6 / 5.1 %, for
+                // about 4 more minutes (twice the iterations gave the quick demo ×0.31 against
+                // ×0.35 too).
                 translate: TranslateConfig {
                     epochs: 12,
                     steps_per_epoch: Some(250),
@@ -126,14 +127,15 @@ impl Protocol {
                     epochs: 2,
                     ..small_force
                 },
-                // 2048 images of each set and group, the feature size: from fewer the sample
-                // covariance is singular and FID is biased upward by about the same amount for
-                // each pair, which pulls the ratio the translation is judged by towards 1. On one
-                // translator (2026-11-28): Î_t–I_t against I_s–I_t ×0.36 seen and ×0.27 unseen at
-                // 256 images, ×0.31 and ×0.26 at 2048. About 12 000 Inception passes, 0.25 s an
-                // image on one core: the longest phase after collection.
+                // 2048 images of each set and group, Inception's feature size: from fewer the
+                // sample covariance is singular and FID is biased upward by about the same
+                // amount for each pair, which pulls the ratio the translation is judged by
+                // towards 1. On one translator (2026-11-28): Î_t–I_t against I_s–I_t ×0.36 seen
+                // and ×0.27 unseen at 256 images, ×0.31 and ×0.26 at 2048. About 12 000
+                // Inception passes, 0.25 s an image on one core: the longest phase after
+                // collection.
                 fid: FidConfig {
-                    max_images: 2048,
+                    max_images: FEATURE_DIM,
                     ..FidConfig::default()
                 },
             },
@@ -163,7 +165,7 @@ impl Protocol {
                 },
                 // The feature size, as at the CPU scale.
                 fid: FidConfig {
-                    max_images: 2048,
+                    max_images: FEATURE_DIM,
                     ..FidConfig::default()
                 },
             },
