@@ -30,7 +30,12 @@ pub(super) const MIN_CHANNELS: usize = 32;
 /// Whether a 3 × 3 same layer of `c → o` channels on `h × w` images takes this path: even
 /// sizes (whole 2 × 2 blocks) and [`MIN_CHANNELS`] each way.
 pub(super) fn fits(c: usize, o: usize, h: usize, w: usize) -> bool {
-    h % 2 == 0 && w % 2 == 0 && h > 0 && w > 0 && c >= MIN_CHANNELS && o >= MIN_CHANNELS
+    h.is_multiple_of(2)
+        && w.is_multiple_of(2)
+        && h > 0
+        && w > 0
+        && c >= MIN_CHANNELS
+        && o >= MIN_CHANNELS
 }
 
 /// Images transformed together, so each of the 16 products has about 512 rows (blocks).
