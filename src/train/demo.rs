@@ -68,7 +68,8 @@ impl DemoPlan {
                 // sim-target stays near zero (R² Fx, Fy ≤ 0.1). With the reference generator
                 // which one won on Fx and Fy was chance; with one downsampling (`translate`
                 // below) TransForce predicts less spurious shear than source-only and wins them
-                // by ×1.4 or more (the demo test). Normal force does transfer, better from R+M:
+                // (the demo test), by as little as ×1.08 on Fx (five runs on 2026-11-28: Fx
+                // ×1.08-1.84, Fy ×1.34-4.4). Normal force does transfer, better from R+M:
                 // on one recorded set, TransForce Fz 0.31 N against source-only 1.51 (R: 0.55
                 // against 3.24; in CI's run on R, 0.49 against 0.75). The full demo and
                 // `rig reproduce` run all three.
