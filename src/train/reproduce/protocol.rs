@@ -18,8 +18,8 @@ use crate::train::nn::Depth;
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size meant for 2 CPU cores in under two hours (69 min on 2 cores on
-    /// 2026-11-28, 28.5 of them FID; README, Commands).
+    /// The whole split at a size meant for 2 CPU cores in under two hours (about 74 min on 2
+    /// cores on 2026-11-28, from its phases' times; 28.5 of them FID; README, Commands).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
@@ -104,25 +104,39 @@ impl Protocol {
                 spec: (32, 24),
                 modalities: Modality::ALL.to_vec(),
                 seeds: vec![1, 2, 3],
-                // 3000 iterations (12 epochs of 250). With 1500 the protocol gave FID ×0.39 /
-                // ×0.29 and TransForce Fz 5.2 / 5.5 % of range (seen / unseen, 2026-11-28); with
-                // 3000, on the same recordings, ×0.36 / ×0.27 at 256 images and 4.6 / 5.1 %, for
-                // about 4 more minutes (twice the iterations gave the quick demo ×0.31 against
-                // ×0.35 too).
+                // 6000 iterations (24 epochs of 250; the paper trains 30 epochs of its whole
+                // set). On the same recordings (2026-11-28, FID at 256 images per set and
+                // group, TransForce R+M Fz % of range seen / unseen):
+                // - 1500: FID ×0.39 / ×0.29, Fz 5.2 / 5.5;
+                // - 3000: ×0.36 / ×0.27, Fz 4.6 / 5.1 (at 2048 images ×0.31 / ×0.26);
+                // - 6000: ×0.36 / ×0.29, Fz 4.1 / 4.4 (at 2048 images ×0.31 / ×0.27).
+                // With the translator's seed 2: 3000 gave ×0.44 / ×0.36, 6000 ×0.42 / ×0.33 and
+                // Fz 4.8 / 5.2, so which translator a run draws moves Fz by about a point. On
+                // sim-third, twice the quick demo's iterations took its unseen R² Fz from −0.48
+                // to 0.83 and FID from ×0.46 to ×0.31 (seen). 6000 iterations take 5.5 min
+                // alone on 2 cores.
                 translate: TranslateConfig {
-                    epochs: 12,
+                    epochs: 24,
                     steps_per_epoch: Some(250),
                     ..small_gan
                 },
                 // 480 Adam steps of 16 sequences (960 training trajectories, 4 sequences
                 // each, 2 epochs): 27 models of ResNet-18 width 8, two at a time on one core
-                // each (about 55 sequences/s each since the kernels of 9e8c057, `RAYON_NUM_THREADS=1
-                // rig bench train --speed --size 32x24 --width 8 --batch 16`): 34 minutes of the
-                // 98 measured. The quick demo's models learn normal force in 360 steps; they
-                // learnt shear on their own sensor in 720. Three epochs (720 steps) were tried on
-                // 2026-11-28 and learnt no shear on the target either (R² ≤ 0 on Fx and Fy for
-                // all 27 models; TransForce Fz 6.2 / 6.8 % of range seen / unseen), so the
-                // scale keeps two.
+                // each, about 75 s a model (107 sequences/s on 2026-11-28, `RAYON_NUM_THREADS=1
+                // rig train force`); the 9 source-only models train beside the translator and
+                // FID, the other 18 took 12 minutes after FID. The quick demo's models learn
+                // normal force in 360 steps; they learnt shear on their own sensor in 720. Three
+                // epochs (720 steps) were tried on 2026-11-28 and learnt no shear on the target
+                // either (R² ≤ 0 on Fx and Fy for all 27 models; TransForce Fz 6.2 / 6.8 % of
+                // range seen / unseen), so the scale keeps two.
+                // What stops shear is the translation, not the force model or the target's
+                // markers: on the source sensor itself the source-only M models read shear well
+                // (R² Fx, Fy 0.93 / 0.95 seen, MAE 0.06 N), and with each trajectory's first
+                // frame subtracted from its frames (an experiment, 2026-11-28, seed 1), a
+                // source-only M model learnt the target's shear too (R² Fx, Fy 0.66 / 0.29 seen,
+                // 0.70 / 0.42 unseen): the raw-frame models key on the source's marker lattice.
+                // TransForce's M model on the same difference learnt none (R² 0.05 / −0.31): the
+                // translated markers do not move with the gel as the source's do.
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
