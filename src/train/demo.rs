@@ -83,14 +83,15 @@ impl DemoPlan {
                         // One downsampling, not the reference's two: at 32 × 24 two leave an
                         // 8 × 6 map, coarser than the markers' 3 px pitch (see `GanShape::down`).
                         // Same cost (the residual blocks see a quarter of the positions at twice
-                        // the channels). Quick demos on 2026-11-28 (release, sim-target, seen /
-                        // unseen): down 2 gave R² Fz 0.4 / 0.33 at best over earlier runs and FID
-                        // ×0.36-0.43; down 1, two runs, R² Fz 0.81 / 0.71 and 0.91 / 0.75, FID
-                        // ×0.35 both; down 0, two runs, R² Fz 0.70 / -1.7 and 0.86 / -0.26, FID
-                        // ×0.58 and ×0.52, but the only setting that learnt some shear on
-                        // sim-target (R² Fx, Fy 0.08 / 0.38 and 0.30 / 0.34 seen; with 12 epochs
-                        // of translation 0.11 / 0.26, unseen R² Fz 0.66, FID ×0.54). On sim-third
-                        // (one run) down 1 learnt shear too (R² Fx, Fy 0.45 / 0.43 seen). Down 1
+                        // the channels). Quick demos on 2026-11-28 (release, sim-target, 1200
+                        // translator iterations, seen / unseen): down 2 gave R² Fz 0.4 / 0.33 at
+                        // best over earlier runs and FID ×0.36-0.43; down 1, two runs, R² Fz
+                        // 0.81 / 0.71 and 0.91 / 0.75, FID ×0.35 both; down 0, two runs, R² Fz
+                        // 0.70 / -1.7 and 0.86 / -0.26, FID ×0.58 and ×0.52, but the only
+                        // setting that learnt some shear on sim-target (R² Fx, Fy 0.08 / 0.38 and
+                        // 0.30 / 0.34 seen; with 2400 iterations 0.11 / 0.26, unseen R² Fz 0.66,
+                        // FID ×0.54). On sim-third down 1 learns shear too (R² Fx, Fy 0.45 / 0.43
+                        // seen at 1200 iterations; 0.39-0.59 / 0.30-0.49 in three at 2400). Down 1
                         // keeps the unseen indenters' Fz (the cone's R² > 0 in 5 of 6 runs) and
                         // the better FID.
                         down: 1,
@@ -99,9 +100,13 @@ impl DemoPlan {
                     // iterations, not 30 epochs.
                     lr: 1e-3,
                     batch: 4,
-                    // 1200 iterations: at 600 the translated contact patches were still
-                    // smeared, and force models trained on them did not transfer shear.
-                    epochs: 6,
+                    // 2400 iterations. At 600 the translated contact patches were still
+                    // smeared, and force models trained on them did not transfer shear. At 1200
+                    // (until 2026-11-28) sim-third's unseen R² Fz fell to −0.48 in one run (FID
+                    // ×0.46 seen); at 2400 three sim-third runs gave 0.75-0.91 (FID ×0.27-0.31),
+                    // and three on sim-target 0.61-0.82 (0.39-0.71 in five at 1200), FID
+                    // ×0.30-0.32. About 80 s more (2400 iterations in 175 s).
+                    epochs: 12,
                     steps_per_epoch: Some(200),
                     ..TranslateConfig::default()
                 },
