@@ -134,7 +134,8 @@ impl Protocol {
                 // (R² Fx, Fy 0.93 / 0.95 seen, MAE 0.06 N), and with each trajectory's first
                 // frame subtracted from its frames (an experiment, 2026-11-28, seed 1), a
                 // source-only M model learnt the target's shear too (R² Fx, Fy 0.66 / 0.29 seen,
-                // 0.70 / 0.42 unseen): the raw-frame models key on the source's marker lattice.
+                // 0.70 / 0.42 unseen), so the raw-frame models seem to key on the lattice itself
+                // (a 0.9 mm grid on the source, jittered 1.1 mm hexagons on the target).
                 // TransForce's M model on the same difference learnt none (R² 0.05 / −0.31): the
                 // translated markers do not move with the gel as the source's do.
                 force: ForceConfig {
