@@ -8,7 +8,7 @@ use crate::train::demo;
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// A small version (what CI runs; about 12 minutes on 2 cores): fewer
+    /// A small version (what CI runs; about 7 minutes on 2 cores in a release build): fewer
     /// indenters and trajectories, smaller images and networks, R+M only.
     #[arg(long)]
     pub quick: bool,
