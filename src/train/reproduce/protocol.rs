@@ -18,8 +18,8 @@ use crate::train::nn::Depth;
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size meant for 2 CPU cores in under two hours (about 74 min on 2
-    /// cores on 2026-11-28, from its phases' times; 28.5 of them FID; README, Commands).
+    /// The whole split at a size meant for 2 CPU cores in under two hours (84 min end to end
+    /// on 2 cores on 2026-11-28, 32 of them FID; README, Commands).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
@@ -111,7 +111,8 @@ impl Protocol {
                 // - 3000: ×0.36 / ×0.27, Fz 4.6 / 5.1 (at 2048 images ×0.31 / ×0.26);
                 // - 6000: ×0.36 / ×0.29, Fz 4.1 / 4.4 (at 2048 images ×0.31 / ×0.27).
                 // With the translator's seed 2: 3000 gave ×0.44 / ×0.36, 6000 ×0.42 / ×0.33 and
-                // Fz 4.8 / 5.2, so which translator a run draws moves Fz by about a point. On
+                // Fz 4.8 / 5.2, so which translator a run draws moves Fz by about a point; so do
+                // the recordings: end to end on fresh ones, seed 1 gave Fz 5.1 / 5.8. On
                 // sim-third, twice the quick demo's iterations took its unseen R² Fz from −0.48
                 // to 0.83 and FID from ×0.46 to ×0.31 (seen). 6000 iterations take 5.5 min
                 // alone on 2 cores.
