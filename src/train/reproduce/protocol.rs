@@ -115,7 +115,12 @@ impl Protocol {
                 // the recordings: end to end on fresh ones, seed 1 gave Fz 5.1 / 5.8. On
                 // sim-third, twice the quick demo's iterations took its unseen R² Fz from −0.48
                 // to 0.83 and FID from ×0.46 to ×0.31 (seen). 6000 iterations take 5.5 min
-                // alone on 2 cores.
+                // alone on 2 cores. More did not help (2026-11-29, one set of fresh recordings,
+                // `--no-fid`): 6000 gave Fz 4.9 / 5.4, 12 000 gave 4.8 / 5.4. Nor did a larger
+                // translation: translating at 64 × 48 (markers 7 px apart, 3000 iterations; the
+                // force models at 32 × 24 on its output) drew the contacts more cleanly but gave
+                // TransForce R+M Fz 0.92 / 0.94 N and 1.20 / 1.25 N (seeds 1, 2) against 0.85 /
+                // 0.88 and 0.87 / 0.94 at 32 × 24, no shear (R² ≈ 0), FID ×0.68 at 256 images.
                 translate: TranslateConfig {
                     epochs: 24,
                     steps_per_epoch: Some(250),
