@@ -381,6 +381,20 @@ pub fn translate(
             let epoch = (it + 1) / per_epoch;
             let grid = sample_grid(&gan, source, target, &mut Rng(cfg.seed ^ 77))?;
             grid.save(samples_dir.join(format!("epoch-{epoch:03}.png")))?;
+            // Without a terminal the bar is hidden: a line an epoch, so a log shows the run
+            // moving (a long translation otherwise prints nothing until it ends).
+            if !progress {
+                eprintln!(
+                    "translate: epoch {epoch}/{} (iteration {}/{iterations}) cycle {:.3} adv \
+                     {:.3} D {:.3} · {:.1} img/s",
+                    cfg.epochs,
+                    it + 1,
+                    last.cycle,
+                    last.adv,
+                    last.disc,
+                    ((it + 1) * batch * 2) as f64 / secs
+                );
+            }
         }
     }
     bar.finish_and_clear();
