@@ -121,6 +121,8 @@ impl Protocol {
                 // force models at 32 × 24 on its output) drew the contacts more cleanly but gave
                 // TransForce R+M Fz 0.92 / 0.94 N and 1.20 / 1.25 N (seeds 1, 2) against 0.85 /
                 // 0.88 and 0.87 / 0.94 at 32 × 24, no shear (R² ≈ 0), FID ×0.68 at 256 images.
+                // Nor did drawing the translator's frames in proportion to their difference from
+                // the trajectory's first frame (more deep contacts): Fz 5.8 / 6.4.
                 translate: TranslateConfig {
                     epochs: 24,
                     steps_per_epoch: Some(250),
