@@ -369,13 +369,14 @@ pub fn translate(
             last.disc
         ));
         let secs = t0.elapsed().as_secs_f64().max(1e-9);
-        bar.set_message(format!(
+        let status = format!(
             "cycle {:.3} adv {:.3} D {:.3} · {:.1} img/s",
             last.cycle,
             last.adv,
             last.disc,
             ((it + 1) * batch * 2) as f64 / secs
-        ));
+        );
+        bar.set_message(status.clone());
         bar.inc(1);
         if (it + 1) % per_epoch == 0 {
             let epoch = (it + 1) / per_epoch;
@@ -385,14 +386,9 @@ pub fn translate(
             // moving (a long translation otherwise prints nothing until it ends).
             if !progress {
                 eprintln!(
-                    "translate: epoch {epoch}/{} (iteration {}/{iterations}) cycle {:.3} adv \
-                     {:.3} D {:.3} · {:.1} img/s",
+                    "translate: epoch {epoch}/{} (iteration {}/{iterations}) {status}",
                     cfg.epochs,
-                    it + 1,
-                    last.cycle,
-                    last.adv,
-                    last.disc,
-                    ((it + 1) * batch * 2) as f64 / secs
+                    it + 1
                 );
             }
         }
