@@ -8,7 +8,7 @@ use clap::{Args, Subcommand};
 
 use crate::train::modality::Modality;
 use crate::train::nn::Depth;
-use crate::train::{TrainerConfig, cyclegan, data, eval, force, report};
+use crate::train::{Progress, TrainerConfig, cyclegan, data, eval, force, report};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -193,7 +193,14 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
                     base.to_string()
                 }
             });
-            let r = force::train(&set, &cfg.force, &method, &a.out, a.resume, progress)?;
+            let r = force::train(
+                &set,
+                &cfg.force,
+                &method,
+                &a.out,
+                a.resume,
+                Progress::for_stderr(),
+            )?;
             println!(
                 "{method}: {} epochs, loss {:.4}, {:.1} sequences/s ({:.0} images/s); model in {}",
                 r.epochs_done,

@@ -17,6 +17,7 @@ use anyhow::Context;
 use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
 
+use super::Progress;
 use super::cyclegan::TranslateConfig;
 use super::data::{self, ImageSpec, Split};
 use super::eval::{self, FidConfig};
@@ -475,7 +476,7 @@ pub(super) fn train_force(
     dir: &Path,
 ) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
-    let r = force::train(set, cfg, name, dir, false, false)?;
+    let r = force::train(set, cfg, name, dir, false, Progress::Silent)?;
     eprintln!(
         "      {name} {}: loss {:.4}, {:.0} s",
         m.paper_name(),

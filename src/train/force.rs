@@ -321,7 +321,7 @@ pub fn train(
     method: &str,
     out: &Path,
     resume: bool,
-    progress: bool,
+    progress: super::Progress,
 ) -> anyhow::Result<TrainReport> {
     if cfg.seq_len == 0 || cfg.batch == 0 || cfg.per_trajectory == 0 {
         bail!("seq_len, batch and per_trajectory must be at least 1");
@@ -386,7 +386,7 @@ pub fn train(
         info.range = old.range;
         info.epochs_done = old.epochs_done;
         info.last_loss = old.last_loss;
-        if progress {
+        if progress != super::Progress::Silent {
             eprintln!("resuming {} after epoch {}", out.display(), old.epochs_done);
         }
     }
@@ -395,7 +395,7 @@ pub fn train(
         .len()
         .div_ceil(cfg.batch);
     let total = (cfg.epochs.saturating_sub(info.epochs_done) * steps_per_epoch) as u64;
-    let bar = super::progress_bar(progress, total, "force");
+    let bar = super::progress_bar(progress == super::Progress::Bar, total, "force");
     let t0 = std::time::Instant::now();
     let mut seqs_done = 0usize;
     let mut log = fs::OpenOptions::new()
@@ -470,6 +470,16 @@ pub fn train(
         info.epochs_done = epoch + 1;
         info.last_loss = mean;
         save_checkpoint(out, &net, &optim, &info)?;
+        if progress == super::Progress::Lines {
+            let secs = t0.elapsed().as_secs_f64().max(1e-9);
+            eprintln!(
+                "force: epoch {}/{} loss {mean:.4} · {:.1} seq/s {:.0} img/s",
+                epoch + 1,
+                cfg.epochs,
+                seqs_done as f64 / secs,
+                (seqs_done * cfg.seq_len) as f64 / secs
+            );
+        }
         use std::io::Write as _;
         writeln!(
             log,

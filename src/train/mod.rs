@@ -32,6 +32,29 @@ pub mod reproduce;
 
 pub use config::{DataConfig, TrainerConfig};
 
+/// How a long training run reports while it runs, on stderr.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Progress {
+    /// A progress bar (stderr is a terminal).
+    Bar,
+    /// A line an epoch (stderr is a log file or a pipe: a bar would print nothing until the
+    /// end, so a long run would look hung).
+    Lines,
+    /// Nothing: the caller reports (the demo, `rig reproduce`, the benchmarks).
+    Silent,
+}
+
+impl Progress {
+    /// A bar on a terminal, lines otherwise.
+    pub fn for_stderr() -> Self {
+        if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+            Self::Bar
+        } else {
+            Self::Lines
+        }
+    }
+}
+
 /// A progress bar on stderr (hidden when `show` is false).
 pub fn progress_bar(show: bool, len: u64, what: &str) -> indicatif::ProgressBar {
     if !show {

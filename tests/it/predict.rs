@@ -21,6 +21,7 @@ use rig::predict::output::{Format, Output, TOPIC_PREDICTED, predicted_channel};
 use rig::predict::session::{self, Feed};
 use rig::predict::source::{Replay, SimRun, marker_of};
 use rig::predict::{Predictor, PredictorOptions};
+use rig::train::Progress;
 use rig::train::data::{self, ImageSpec, LabelledSet, Trajectory};
 use rig::train::eval;
 use rig::train::force::{self, ForceConfig, ForceModel};
@@ -81,7 +82,7 @@ fn fixture() -> &'static Fixture {
             "tiny",
             &model,
             false,
-            false,
+            Progress::Silent,
         )
         .unwrap();
         Fixture { data, model }

@@ -3,6 +3,7 @@
 //! seeds make runs repeatable.
 
 use burn::tensor::Tensor;
+use rig::train::Progress;
 use rig::train::batch::{Rng, images_to_tensor};
 use rig::train::cyclegan::{CycleGan, TranslateConfig};
 use rig::train::data::{ImageSpec, LabelledSet, Trajectory};
@@ -177,7 +178,15 @@ fn the_force_model_overfits_a_tiny_dataset_and_round_trips_through_its_checkpoin
         seed: 2,
         ..small_force(true, 120)
     };
-    let r = force::train(&set, &cfg, "TransForce", dir.path(), false, false).unwrap();
+    let r = force::train(
+        &set,
+        &cfg,
+        "TransForce",
+        dir.path(),
+        false,
+        Progress::Silent,
+    )
+    .unwrap();
     assert_eq!(r.epochs_done, 120);
     let model = ForceModel::load(dir.path()).unwrap();
     let (pred, truth) = predict_all(&model, &set);
@@ -205,7 +214,7 @@ fn no_lstm_and_source_only_run_through_the_same_code_path() {
             method,
             dir.path(),
             false,
-            false,
+            Progress::Silent,
         )
         .unwrap();
         let model = ForceModel::load(dir.path()).unwrap();
@@ -225,7 +234,15 @@ fn without_an_lstm_each_frame_is_predicted_alone() {
     let set = tiny_set();
     for lstm in [false, true] {
         let dir = tempfile::tempdir().unwrap();
-        force::train(&set, &small_force(lstm, 1), "x", dir.path(), false, false).unwrap();
+        force::train(
+            &set,
+            &small_force(lstm, 1),
+            "x",
+            dir.path(),
+            false,
+            Progress::Silent,
+        )
+        .unwrap();
         let m = ForceModel::load(dir.path()).unwrap();
         let a = rig::train::batch::Sequence {
             traj: 0,
@@ -253,7 +270,7 @@ fn seeds_make_training_repeatable_and_resume_continues_the_same_run() {
             seed,
             ..small_force(true, epochs)
         };
-        force::train(&set, &cfg, "x", dir, resume, false).unwrap();
+        force::train(&set, &cfg, "x", dir, resume, Progress::Silent).unwrap();
         predict_all(&ForceModel::load(dir).unwrap(), &set).0
     };
     let (a, b, c, d) = (
@@ -284,14 +301,22 @@ fn a_non_finite_loss_stops_training_and_keeps_the_last_good_checkpoint() {
     let _serial = serial();
     let set = tiny_set();
     let dir = tempfile::tempdir().unwrap();
-    force::train(&set, &small_force(true, 2), "x", dir.path(), false, false).unwrap();
+    force::train(
+        &set,
+        &small_force(true, 2),
+        "x",
+        dir.path(),
+        false,
+        Progress::Silent,
+    )
+    .unwrap();
     let good = predict_all(&ForceModel::load(dir.path()).unwrap(), &set).0;
     // An absurd learning rate blows the weights up within the next epoch.
     let cfg = ForceConfig {
         lr: 1e30,
         ..small_force(true, 6)
     };
-    let err = force::train(&set, &cfg, "x", dir.path(), true, false)
+    let err = force::train(&set, &cfg, "x", dir.path(), true, Progress::Silent)
         .unwrap_err()
         .to_string();
     assert!(

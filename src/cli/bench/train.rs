@@ -16,6 +16,7 @@ use plotters::prelude::*;
 
 use crate::chart;
 
+use crate::train::Progress;
 use crate::train::data::{self, ImageSpec, LabelledSet};
 use crate::train::eval::eval_windows;
 use crate::train::force::{self, ForceConfig, ForceModel};
@@ -243,7 +244,7 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
             ..base.clone()
         };
         let dir = tmp.join(format!("speed-{depth}"));
-        let r = force::train(&train, &cfg, "bench", &dir, false, false)?;
+        let r = force::train(&train, &cfg, "bench", &dir, false, Progress::Silent)?;
         let model = ForceModel::load(&dir)?;
         let lengths: Vec<usize> = holdout.trajectories.iter().map(|t| t.frames).collect();
         let seqs: Vec<_> = eval_windows(&lengths, cfg.seq_len)
@@ -287,7 +288,7 @@ pub fn run(args: &TrainBenchArgs) -> anyhow::Result<()> {
                 ..base.clone()
             };
             let t0 = Instant::now();
-            force::train(&train, &cfg, "bench", &dir, epoch > 1, false)?;
+            force::train(&train, &cfg, "bench", &dir, epoch > 1, Progress::Silent)?;
             secs += t0.elapsed().as_secs_f64();
             let mae = holdout_mae(&ForceModel::load(&dir)?, &holdout);
             eprintln!("{name} epoch {epoch}: {secs:.1} s, MAE {mae:.3?} N");
