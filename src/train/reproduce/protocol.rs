@@ -11,15 +11,15 @@ use crate::train::eval::FidConfig;
 use crate::train::force::ForceConfig;
 use crate::train::inception::FEATURE_DIM;
 use crate::train::modality::Modality;
-use crate::train::nn::Depth;
+use crate::train::nn::{Depth, GanShape};
 
 /// How big a reproduction to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size meant for 2 CPU cores in under two hours (84 min end to end
-    /// on 2 cores on 2026-11-28, 32 of them FID; README, Commands).
+    /// The whole split at a size meant for 2 CPU cores in under two hours (89 min end to end
+    /// on 2 cores on 2026-11-29, 29 of them FID and 22 translation; README, Commands).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
@@ -115,15 +115,32 @@ impl Protocol {
                 // the recordings: end to end on fresh ones, seed 1 gave Fz 5.1 / 5.8. On
                 // sim-third, twice the quick demo's iterations took its unseen R² Fz from −0.48
                 // to 0.83 and FID from ×0.46 to ×0.31 (seen). 6000 iterations take 5.5 min
-                // alone on 2 cores. More did not help (2026-11-29, one set of fresh recordings,
-                // `--no-fid`): 6000 gave Fz 4.9 / 5.4, 12 000 gave 4.8 / 5.4. Nor did a larger
-                // translation: translating at 64 × 48 (markers 7 px apart, 3000 iterations; the
+                // alone on 2 cores at ngf 8. All of the above is at ngf 8, and so is what
+                // follows; the width that helped is below. More did not help (2026-11-29, one
+                // set of fresh recordings, `--no-fid`): 6000 gave Fz 4.9 / 5.4, 12 000 gave 4.8 /
+                // 5.4. Nor did a larger translation: translating at 64 × 48 (markers 7 px apart,
+                // 3000 iterations; the
                 // force models at 32 × 24 on its output) drew the contacts more cleanly but gave
                 // TransForce R+M Fz 0.92 / 0.94 N and 1.20 / 1.25 N (seeds 1, 2) against 0.85 /
                 // 0.88 and 0.87 / 0.94 at 32 × 24, no shear (R² ≈ 0), FID ×0.68 at 256 images.
                 // Nor did drawing the translator's frames in proportion to their difference from
                 // the trajectory's first frame (more deep contacts): Fz 5.8 / 6.4.
+                // Four times the quick demo's channels (ngf, ndf 32, not 8): at 8 the translator
+                // drew deep contacts as speckled smears. On one set of recordings (2026-11-29,
+                // translator seed 1, 3 force seeds, TransForce R+M, Fz % of range seen / unseen)
+                // ngf 8 gave 4.9 / 5.4, ngf 16 4.0 / 4.4 and ngf 32 3.5 / 3.8; training runs at
+                // 190, 117 and 59 images/s on 2 cores (`rig train translate` took 7.8 min at 16
+                // and 16.5 at 32, translating the sets included). No width learnt shear (R² Fx,
+                // Fy ≤ 0); at 32 the R+M models' shear MAE rose from 2.4 to 2.8 % of range.
+                // End to end on fresh recordings (2026-11-29): Fz 2.1 / 3.3 %, R² Fz 0.91 /
+                // 0.80, FID ×0.12 seen and unseen; translation took 22 min beside the
+                // source-only models.
                 translate: TranslateConfig {
+                    shape: GanShape {
+                        ngf: 32,
+                        ndf: 32,
+                        ..small_gan.shape
+                    },
                     epochs: 24,
                     steps_per_epoch: Some(250),
                     ..small_gan
