@@ -147,7 +147,13 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
             let target = data::load_unlabelled(&a.target, &spec, progress)?;
             // Before training: a damaged or missing explicitly named weights file stops here.
             let net = eval::load_inception(a.inception.as_deref(), cfg.fid.batch, false)?;
-            let t = cyclegan::translate(&source, &target, &cfg.translate, &a.out, progress)?;
+            let t = cyclegan::translate(
+                &source,
+                &target,
+                &cfg.translate,
+                &a.out,
+                Progress::for_stderr(),
+            )?;
             let (source_images, translated_images) = (source.images(), t.set.images());
             let mut table = report::Table {
                 fid: eval::translation_fid(

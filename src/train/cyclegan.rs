@@ -13,6 +13,7 @@ use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+use super::Progress;
 use super::batch::{Rng, images_to_tensor, tensor_to_images};
 use super::data::{ImageSpec, LabelledSet, Trajectory, UnlabelledSet};
 use super::nn::{Discriminator, GanShape, Generator, l1, lsgan};
@@ -313,7 +314,7 @@ pub fn translate(
     target: &UnlabelledSet,
     cfg: &TranslateConfig,
     out: &Path,
-    progress: bool,
+    progress: Progress,
 ) -> anyhow::Result<Translated> {
     let spec = source.spec;
     if target.spec != spec {
@@ -335,7 +336,7 @@ pub fn translate(
     let mut rng = Rng(cfg.seed);
     let samples_dir = out.join("samples");
     fs::create_dir_all(&samples_dir)?;
-    let bar = super::progress_bar(progress, iterations as u64, "translate");
+    let bar = super::progress_bar(progress == Progress::Bar, iterations as u64, "translate");
     let t0 = std::time::Instant::now();
     let mut last = Losses::default();
     let mut log = String::from("iteration,adv,cycle,identity,disc\n");
@@ -382,9 +383,7 @@ pub fn translate(
             let epoch = (it + 1) / per_epoch;
             let grid = sample_grid(&gan, source, target, &mut Rng(cfg.seed ^ 77))?;
             grid.save(samples_dir.join(format!("epoch-{epoch:03}.png")))?;
-            // Without a terminal the bar is hidden: a line an epoch, so a log shows the run
-            // moving (a long translation otherwise prints nothing until it ends).
-            if !progress {
+            if progress == Progress::Lines {
                 eprintln!(
                     "translate: epoch {epoch}/{} (iteration {}/{iterations}) {status}",
                     cfg.epochs,

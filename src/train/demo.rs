@@ -385,7 +385,7 @@ pub fn run(
             &target_seen,
             &plan.translate,
             &out.join("translate"),
-            progress,
+            Progress::for_stderr(),
         )?;
         eprintln!(
             "      {} iterations in {:.0} s, cycle loss {:.3}",

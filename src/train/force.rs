@@ -11,6 +11,7 @@ use burn::store::{BurnpackStore, ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
+use super::Progress;
 use super::batch::{Rng, Sequence, images_to_tensor, sample_sequences};
 use super::data::{ImageSpec, LabelledSet, Trajectory};
 use super::nn::{Depth, FastEncoder, ForceNet, ForceShape, gamma_l1};
@@ -314,6 +315,15 @@ pub struct TrainReport {
     pub seconds: f64,
 }
 
+/// Training throughput for the progress bar and the per-epoch line.
+fn rates(sequences: usize, seq_len: usize, secs: f64) -> String {
+    format!(
+        "{:.1} seq/s {:.0} img/s",
+        sequences as f64 / secs,
+        (sequences * seq_len) as f64 / secs
+    )
+}
+
 /// Train (or resume training of) a force model on `set`, writing checkpoints into `out`.
 pub fn train(
     set: &LabelledSet,
@@ -321,7 +331,7 @@ pub fn train(
     method: &str,
     out: &Path,
     resume: bool,
-    progress: super::Progress,
+    progress: Progress,
 ) -> anyhow::Result<TrainReport> {
     if cfg.seq_len == 0 || cfg.batch == 0 || cfg.per_trajectory == 0 {
         bail!("seq_len, batch and per_trajectory must be at least 1");
@@ -386,7 +396,7 @@ pub fn train(
         info.range = old.range;
         info.epochs_done = old.epochs_done;
         info.last_loss = old.last_loss;
-        if progress != super::Progress::Silent {
+        if progress != Progress::Silent {
             eprintln!("resuming {} after epoch {}", out.display(), old.epochs_done);
         }
     }
@@ -395,7 +405,7 @@ pub fn train(
         .len()
         .div_ceil(cfg.batch);
     let total = (cfg.epochs.saturating_sub(info.epochs_done) * steps_per_epoch) as u64;
-    let bar = super::progress_bar(progress == super::Progress::Bar, total, "force");
+    let bar = super::progress_bar(progress == Progress::Bar, total, "force");
     let t0 = std::time::Instant::now();
     let mut seqs_done = 0usize;
     let mut log = fs::OpenOptions::new()
@@ -438,11 +448,10 @@ pub fn train(
             seqs_done += chunk.len();
             let secs = t0.elapsed().as_secs_f64().max(1e-9);
             bar.set_message(format!(
-                "epoch {}/{} loss {value:.4} · {:.1} seq/s {:.0} img/s",
+                "epoch {}/{} loss {value:.4} · {}",
                 epoch + 1,
                 cfg.epochs,
-                seqs_done as f64 / secs,
-                (seqs_done * cfg.seq_len) as f64 / secs
+                rates(seqs_done, cfg.seq_len, secs)
             ));
             bar.inc(1);
         }
@@ -470,14 +479,12 @@ pub fn train(
         info.epochs_done = epoch + 1;
         info.last_loss = mean;
         save_checkpoint(out, &net, &optim, &info)?;
-        if progress == super::Progress::Lines {
-            let secs = t0.elapsed().as_secs_f64().max(1e-9);
+        if progress == Progress::Lines {
             eprintln!(
-                "force: epoch {}/{} loss {mean:.4} · {:.1} seq/s {:.0} img/s",
+                "force: epoch {}/{} loss {mean:.4} · {}",
                 epoch + 1,
                 cfg.epochs,
-                seqs_done as f64 / secs,
-                (seqs_done * cfg.seq_len) as f64 / secs
+                rates(seqs_done, cfg.seq_len, t0.elapsed().as_secs_f64().max(1e-9))
             );
         }
         use std::io::Write as _;

@@ -40,7 +40,8 @@ pub enum Progress {
     /// A line an epoch (stderr is a log file or a pipe: a bar would print nothing until the
     /// end, so a long run would look hung).
     Lines,
-    /// Nothing: the caller reports (the demo, `rig reproduce`, the benchmarks).
+    /// Nothing: the caller reports (the demo's and `rig reproduce`'s force models, the
+    /// benchmarks).
     Silent,
 }
 

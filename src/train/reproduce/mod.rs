@@ -42,6 +42,7 @@ use anyhow::Context;
 use rig_core::config::RigConfig;
 use serde::{Deserialize, Serialize};
 
+use super::Progress;
 use super::cyclegan;
 use super::data::{self, ImageSpec, LabelledSet, Split};
 use super::demo::{collect_parallel, collect_workers, train_force};
@@ -528,7 +529,7 @@ fn translate_and_fid(
             &target_seen,
             &protocol.translate,
             &tdir,
-            progress,
+            Progress::for_stderr(),
         )?;
         let unseen = cyclegan::apply_translator(&tdir.join("translator"), &source_unseen)?;
         data::write_prepared(&tdir.join("translated-unseen"), &unseen, "translated")?;

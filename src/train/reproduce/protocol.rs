@@ -119,10 +119,10 @@ impl Protocol {
                 // follows; the width that helped is below. More did not help (2026-11-29, one
                 // set of fresh recordings, `--no-fid`): 6000 gave Fz 4.9 / 5.4, 12 000 gave 4.8 /
                 // 5.4. Nor did a larger translation: translating at 64 × 48 (markers 7 px apart,
-                // 3000 iterations; the
-                // force models at 32 × 24 on its output) drew the contacts more cleanly but gave
-                // TransForce R+M Fz 0.92 / 0.94 N and 1.20 / 1.25 N (seeds 1, 2) against 0.85 /
-                // 0.88 and 0.87 / 0.94 at 32 × 24, no shear (R² ≈ 0), FID ×0.68 at 256 images.
+                // 3000 iterations; the force models at 32 × 24 on its output) drew the contacts
+                // more cleanly but gave TransForce R+M Fz 0.92 / 0.94 N and 1.20 / 1.25 N (seeds
+                // 1, 2) against 0.85 / 0.88 and 0.87 / 0.94 at 32 × 24, no shear (R² ≈ 0), FID
+                // ×0.68 at 256 images.
                 // Nor did drawing the translator's frames in proportion to their difference from
                 // the trajectory's first frame (more deep contacts): Fz 5.8 / 6.4.
                 // Four times the quick demo's channels (ngf, ndf 32, not 8): at 8 the translator
