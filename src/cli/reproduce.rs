@@ -9,13 +9,12 @@ use crate::train::reproduce::{self, Fid, Protocol, Scale};
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
     /// How big: `cpu` (the default) runs the whole split on 4 of the 12 directions with small
-    /// images and networks, in under two hours on 2 cores (84 min on 2026-11-28: collection
-    /// 17.6, translation 10.8, FID 31.9, the force models 12.7 after it, evaluation 11.1);
-    /// `paper` runs the full protocol
-    /// (every trajectory, 320 × 240 frames, ResNet-50) and wants a GPU (build with `--features
-    /// vulkan`, or `wgpu` or `gpu`; at the `vulkan` build's speed measured on an H200 its
-    /// training would take about 43 h: README, Features); `tiny` is the tests' few-minute
-    /// version.
+    /// images and networks, in under two hours on 2 cores (89 min on 2026-11-29: collection
+    /// 14.4, translation 22.2, FID 29.1, the force models 12.6 after it, evaluation 11.0);
+    /// `paper` runs the full protocol (every trajectory, 320 × 240 frames, ResNet-50) and wants
+    /// a GPU (build with `--features vulkan`, or `wgpu` or `gpu`; at the `vulkan` build's speed
+    /// measured on an H200 its training would take about 43 h: README, Features); `tiny` is the
+    /// tests' few-minute version.
     #[arg(long, value_enum, default_value = "cpu")]
     pub scale: Scale,
     /// Where the data, translator, models, results and figures go. Run again with the same

@@ -13,9 +13,9 @@
 //! # A frame, from the camera to a force
 //!
 //! Exactly what training and `rig eval` do with a recorded frame ([`crate::train::data`]): the
-//! frame is decoded to RGB, put into the model's modality at the camera's own resolution
-//! (where the markers are several pixels wide; marker sizes from the rig config's optics), and
-//! resized to the network's input (triangle filter). Any camera size with the model's aspect
+//! frame is decoded to RGB, resized to the network's input (triangle filter) and put into the
+//! model's modality there (marker sizes from the rig config's optics, scaled to that size), as
+//! a translated training set's frames are. Any camera size with the model's aspect
 //! ratio therefore works; another aspect ratio (which the resize would distort) or a frame
 //! smaller than the network's input is refused with the sizes in the message.
 //!

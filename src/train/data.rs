@@ -26,7 +26,9 @@ use crate::record::reader::{self, Message};
 pub const PREPARED_INDEX: &str = "prepared.json";
 const PREPARED_FRAMES: &str = "frames.bin";
 const CACHE_DIR: &str = ".trainer-cache";
-const CACHE_MAGIC: &[u8; 8] = b"RIGCACH1";
+/// Version 2: R and M derived at the network's size (version 1 derived them from the full
+/// frame), so older caches are rebuilt.
+const CACHE_MAGIC: &[u8; 8] = b"RIGCACH2";
 
 /// The paper's unseen indenter group; `paralines` is left out of training (contact covers the
 /// whole field of view, a failure case of translation).
@@ -502,21 +504,27 @@ fn load_trajectory(
     })
 }
 
-/// Modality at the recorded resolution (where the markers are several pixels wide), then the
-/// network's size.
+/// The network's size first (triangle filter), then the modality, with `params` (marker sizes
+/// in pixels of `img`) scaled to that size. Every image a force model sees, recorded, translated
+/// or live, takes these same steps: a translated set is written at the network's size, so
+/// deriving R and M there is the one way its images and the target's are made alike (deriving
+/// them from the full frame before resizing made the target's M and R images differ from the
+/// translated ones the TransForce models learnt from).
 pub fn prepare_image(img: &image::RgbImage, spec: &ImageSpec, params: &MarkerParams) -> Vec<u8> {
-    let m = spec.modality.apply(img, params);
-    let out = if m.width() == spec.width && m.height() == spec.height {
-        m
+    let resized;
+    let small = if img.width() == spec.width && img.height() == spec.height {
+        img
     } else {
-        image::imageops::resize(
-            &m,
+        resized = image::imageops::resize(
+            img,
             spec.width,
             spec.height,
             image::imageops::FilterType::Triangle,
-        )
+        );
+        &resized
     };
-    out.into_raw()
+    let scale = spec.width as f32 / img.width().max(1) as f32;
+    spec.modality.apply(small, &params.scaled(scale)).into_raw()
 }
 
 fn read_cache(path: &Path, stamp: (u64, u64), spec: &ImageSpec) -> Option<Cached> {
@@ -736,5 +744,72 @@ mod tests {
         );
         let nan = LabelledSet::from_parts(spec, vec![traj], vec![vec![[f32::NAN, 0.0, 0.0]; 2]]);
         assert!(nan.unwrap_err().to_string().contains("not finite"));
+    }
+
+    /// A 160 × 120 frame of dark 3.2 px-radius dots on a 16 px lattice over a lit gradient (dots
+    /// about 0.6 px across at 32 × 24, the simulated target's at the CPU protocol's sizes).
+    fn dotted_frame() -> image::RgbImage {
+        image::RgbImage::from_fn(160, 120, |x, y| {
+            let (dx, dy) = ((x % 16) as f32 - 8.0, (y % 16) as f32 - 8.0);
+            let shade = 120 + (x / 2) as u8;
+            if dx * dx + dy * dy <= 3.2 * 3.2 {
+                image::Rgb([25, 20, 20])
+            } else {
+                image::Rgb([shade, shade.saturating_sub(20), 90])
+            }
+        })
+    }
+
+    #[test]
+    fn a_frame_and_its_network_sized_copy_give_the_same_modality_image() {
+        // A translated set holds network-sized R+M frames; R and M are derived from them. A
+        // recorded frame must give the force model the same image as its resized copy would,
+        // or the TransForce models are tested on images unlike those they learnt from.
+        let big = dotted_frame();
+        let params = MarkerParams::for_dot_radius(3.2);
+        let small = image::imageops::resize(&big, 32, 24, image::imageops::FilterType::Triangle);
+        for modality in Modality::ALL {
+            let spec = ImageSpec {
+                width: 32,
+                height: 24,
+                modality,
+            };
+            let from_big = prepare_image(&big, &spec, &params);
+            let from_small = prepare_image(&small, &spec, &params.scaled(0.2));
+            assert_eq!(from_big.len(), 32 * 24 * 3);
+            assert_eq!(from_big, from_small, "{modality}");
+        }
+        // And M still finds the dots at that size: bright at a dot's centre (pixel 1.5 of each
+        // 3.2 px cell), dark between dots.
+        let spec = ImageSpec {
+            width: 32,
+            height: 24,
+            modality: Modality::Marker,
+        };
+        let m = prepare_image(&big, &spec, &params);
+        let at = |x: usize, y: usize| m[(y * 32 + x) * 3] as i32;
+        let (on, off) = (
+            at(1, 1) + at(4, 4) + at(11, 11),
+            at(3, 3) + at(6, 9) + at(9, 6),
+        );
+        assert!(on > off + 3 * 40, "dots {on}, between them {off}");
+    }
+
+    #[test]
+    fn marker_sizes_scale_with_the_image() {
+        let p = MarkerParams {
+            threshold: 0.2,
+            ..MarkerParams::for_dot_radius(3.2)
+        };
+        let q = p.scaled(0.2);
+        assert!((q.dot_radius_px - 0.64).abs() < 1e-6);
+        assert_eq!(q.threshold, 0.2);
+        assert_eq!(q.inpaint_radius_px, 2.0);
+        assert_eq!(p.scaled(2.0).dot_radius_px, 6.4);
+        for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            assert_eq!(p.scaled(bad), p);
+        }
+        // Never below half a pixel.
+        assert_eq!(p.scaled(0.01).dot_radius_px, 0.5);
     }
 }

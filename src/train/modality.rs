@@ -95,6 +95,18 @@ impl MarkerParams {
         }
     }
 
+    /// The same settings for the image resized by `factor` (dot and inpainting radii scale, the
+    /// threshold stays); a factor that is not a positive number leaves them as they are.
+    pub fn scaled(self, factor: f32) -> Self {
+        if !(factor.is_finite() && factor > 0.0) {
+            return self;
+        }
+        Self {
+            threshold: self.threshold,
+            ..Self::for_dot_radius(self.dot_radius_px * factor)
+        }
+    }
+
     /// Radius of the closing's structuring element: wider than a dot, so closing fills it.
     fn closing_radius(&self) -> usize {
         (self.dot_radius_px * 1.5 + 1.0).ceil() as usize

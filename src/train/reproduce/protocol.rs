@@ -166,7 +166,15 @@ impl Protocol {
                 // 0.70 / 0.42 unseen), so the raw-frame models seem to key on the lattice itself
                 // (a 0.9 mm grid on the source, jittered 1.1 mm hexagons on the target).
                 // TransForce's M model on the same difference learnt none (R² 0.05 / −0.31): the
-                // translated markers do not move with the gel as the source's do.
+                // translated markers do not move with the gel as the source's do. (These were
+                // with R and M derived from the full frame; they are derived at the network's
+                // size since 2026-11-29, see `data::prepare_image`.) Nor did a second
+                // discriminator on (first frame, frame) pairs of each trajectory teach the
+                // translator to move them (2026-11-29, ngf 8, weight 1: R² Fx, Fy ≤ 0 on the
+                // target, 0.24 / 0.28 on its own translated set against 0.44 / 0.33 without it
+                // at ngf 32). How much shear there is to win: models trained on the target's own
+                // labels (outside the protocol, seed 1) read it to 0.08-0.11 N (R² 0.84-0.96),
+                // ×3.0-3.9 better than source-only's best, so the issue's ×3 bar is at that edge.
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
