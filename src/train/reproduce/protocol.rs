@@ -134,11 +134,13 @@ impl Protocol {
                 // Fy ≤ 0); at 32 the R+M models' shear MAE rose from 2.4 to 2.8 % of range.
                 // End to end on fresh recordings (2026-11-29): Fz 2.1 / 3.3 %, R² Fz 0.91 /
                 // 0.80, FID ×0.12 seen and unseen; translation took 22 min beside the
-                // source-only models. Not yet checked at this scale on sim-third: on the quick
-                // demo's sim-third recordings (its 2400 iterations, 2 force seeds, R+M) 32
-                // channels learnt more shear (R² Fx, Fy 0.57-0.59 / 0.55-0.56 seen against
-                // 0.26-0.33 / −0.14-0.34 at 8) but read Fz worse (MAE 0.17-0.18 N against
-                // 0.11-0.13, unseen R² Fz about 0 against 0.7).
+                // source-only models. On the quick demo's sim-third recordings (its 2400
+                // iterations, 2 force seeds, R+M) 32 channels learnt more shear than 8 (R² Fx, Fy
+                // 0.57-0.59 / 0.55-0.56 seen against 0.26-0.33 / −0.14-0.34) but read Fz worse
+                // (MAE 0.17-0.18 N against 0.11-0.13, unseen R² Fz about 0 against 0.7). At this
+                // scale on sim-third (2026-11-29, `--no-fid`, R and M at the network's size) it
+                // transfers: TransForce 1.8 / 1.9 / 2.2 % of range seen and 2.0 / 2.0 / 3.0 %
+                // unseen (shear with M, R² 0.38 / 0.32 seen; Fz with R+M, R² 0.91 / 0.83).
                 translate: TranslateConfig {
                     shape: GanShape {
                         ngf: 32,
