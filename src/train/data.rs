@@ -746,8 +746,9 @@ mod tests {
         assert!(nan.unwrap_err().to_string().contains("not finite"));
     }
 
-    /// A 160 × 120 frame of dark 3.2 px-radius dots on a 16 px lattice over a lit gradient (dots
-    /// about 0.6 px across at 32 × 24, the simulated target's at the CPU protocol's sizes).
+    /// A 160 × 120 frame of dark 3.2 px-radius dots on a 16 px lattice over a lit gradient: at
+    /// 32 × 24, dots of 0.64 px radius 3.2 px apart, the simulated target's at the CPU
+    /// protocol's sizes.
     fn dotted_frame() -> image::RgbImage {
         image::RgbImage::from_fn(160, 120, |x, y| {
             let (dx, dy) = ((x % 16) as f32 - 8.0, (y % 16) as f32 - 8.0);
@@ -779,8 +780,8 @@ mod tests {
             assert_eq!(from_big.len(), 32 * 24 * 3);
             assert_eq!(from_big, from_small, "{modality}");
         }
-        // And M still finds the dots at that size: bright at a dot's centre (pixel 1.5 of each
-        // 3.2 px cell), dark between dots.
+        // And M still finds the dots at that size: bright on the pixels holding dot centres
+        // (1.6, 4.8 and 11.2 px), dark on those halfway between them (3.2, 6.4 and 9.6 px).
         let spec = ImageSpec {
             width: 32,
             height: 24,
