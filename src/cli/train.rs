@@ -152,7 +152,7 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
                 &target,
                 &cfg.translate,
                 &a.out,
-                Progress::for_stderr(),
+                Progress::bar_or_lines(progress),
             )?;
             let (source_images, translated_images) = (source.images(), t.set.images());
             let mut table = report::Table {
@@ -205,7 +205,7 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
                 &method,
                 &a.out,
                 a.resume,
-                Progress::for_stderr(),
+                Progress::bar_or_lines(progress),
             )?;
             println!(
                 "{method}: {} epochs, loss {:.4}, {:.1} sequences/s ({:.0} images/s); model in {}",

@@ -385,7 +385,7 @@ pub fn run(
             &target_seen,
             &plan.translate,
             &out.join("translate"),
-            Progress::for_stderr(),
+            Progress::bar_or_lines(progress),
         )?;
         eprintln!(
             "      {} iterations in {:.0} s, cycle loss {:.3}",

@@ -46,13 +46,10 @@ pub enum Progress {
 }
 
 impl Progress {
-    /// A bar on a terminal, lines otherwise.
-    pub fn for_stderr() -> Self {
-        if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
-            Self::Bar
-        } else {
-            Self::Lines
-        }
+    /// A bar where progress bars show (stderr is a terminal: the callers' `progress`), lines
+    /// otherwise.
+    pub fn bar_or_lines(bar: bool) -> Self {
+        if bar { Self::Bar } else { Self::Lines }
     }
 }
 

@@ -529,7 +529,7 @@ fn translate_and_fid(
             &target_seen,
             &protocol.translate,
             &tdir,
-            Progress::for_stderr(),
+            Progress::bar_or_lines(progress),
         )?;
         let unseen = cyclegan::apply_translator(&tdir.join("translator"), &source_unseen)?;
         data::write_prepared(&tdir.join("translated-unseen"), &unseen, "translated")?;
