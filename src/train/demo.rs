@@ -64,9 +64,11 @@ impl DemoPlan {
                 // makes the quick models transfer shear to the target: source-only learns shear
                 // on its own sensor from the markers (R² Fx, Fy 0.997 on the source's R+M, 0.53
                 // and 0.65 on R, where only the contact's position and its history tell it), but
-                // this small CycleGAN cannot redraw the source's 0.9 mm grid as the target's
-                // jittered 1.1 mm hexagons moving with the gel, and every quick model's shear on
-                // sim-target stays near zero (R² Fx, Fy ≤ 0.1). With the reference generator
+                // this small CycleGAN cannot redraw the source's 0.9 mm grid at the target's
+                // 1.1 mm pitch and keep it moving with the gel, and every quick model's shear on
+                // sim-target stays near zero (R² Fx, Fy ≤ 0.1). The pitch is what decides: with
+                // sim-target's hexagons 0.9 mm apart the quick demo learns shear (README,
+                // Benchmarks, *The protocol's runs*). With the reference generator
                 // which one won on Fx and Fy was chance; with one downsampling (`translate`
                 // below) TransForce predicts less spurious shear than source-only and wins them
                 // (the demo test), by as little as ×1.08 on Fx (five runs on 2026-11-28: Fx

@@ -177,6 +177,12 @@ impl Protocol {
                 // at ngf 32). How much shear there is to win: models trained on the target's own
                 // labels (outside the protocol, seed 1) read it to 0.08-0.11 N (R² 0.84-0.96),
                 // ×3.0-3.9 better than source-only's best, so the issue's ×3 bar is at that edge.
+                // What keeps the translated markers still is sim-target's pitch, 22 % coarser
+                // than the source's: quick demos with only its markers changed (2026-11-29)
+                // learnt shear at the source's 0.9 mm, a little at 1.0 and none at 0.7 or 1.1,
+                // whatever the lattice's shape or jitter. At this scale with 0.9 mm hexagons
+                // TransForce learnt some Fx (R² 0.20 seen) and little Fy, ×1.2-1.4 better than
+                // source-only on shear (README, Benchmarks, *The protocol's runs*).
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
