@@ -9,8 +9,8 @@ use crate::train::reproduce::{self, Fid, Protocol, Scale};
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
     /// How big: `cpu` (the default) runs the whole split on 4 of the 12 directions with small
-    /// images and networks, in under two hours on 2 cores (89 min on 2026-11-29: collection
-    /// 14.4, translation 22.2, FID 29.1, the force models 12.6 after it, evaluation 11.0);
+    /// images and networks, in under two hours on 2 cores (84 min on 2026-11-29: collection
+    /// 14.7, translation 22.1, FID 28.7, the force models 11.6 after it, evaluation 7.3);
     /// `paper` runs the full protocol (every trajectory, 320 × 240 frames, ResNet-50) and wants
     /// a GPU (build with `--features vulkan`, or `wgpu` or `gpu`; at the `vulkan` build's speed
     /// measured on an H200 its training would take about 43 h: README, Features); `tiny` is the
