@@ -25,6 +25,11 @@ pub struct DemoArgs {
     /// (the demo records on it); use a fresh --out, since recorded data are reused.
     #[arg(long, value_name = "FILE")]
     pub target: Option<PathBuf>,
+    /// Magnify the source sensor's frames by the ratio of the two sensors' marker pitches
+    /// before translating them, so that shear can cross the translation (off by default; see
+    /// README, Benchmarks, *The protocol's runs*). Use a fresh --out.
+    #[arg(long)]
+    pub match_marker_pitch: bool,
 }
 
 /// The `--target` sensor's config: a simulated rig (the demo and the reproduction record on it).
@@ -53,6 +58,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         &args.out,
         args.inception.as_deref(),
         target.as_ref(),
+        args.match_marker_pitch,
     )?;
     println!("{}", table.markdown());
     for (modality, group, wins) in demo::beats_source_only(&table.rows) {

@@ -37,11 +37,18 @@ pub struct ReproduceArgs {
     /// rig. Use a fresh --out.
     #[arg(long, value_name = "FILE")]
     pub target: Option<PathBuf>,
+    /// Magnify the source sensor's frames by the ratio of the two sensors' marker pitches
+    /// before translating them, so that shear can cross the translation (off by default; see
+    /// README, Benchmarks, *The protocol's runs*). Use a fresh --out: a finished translation
+    /// in --out is reused as it is.
+    #[arg(long)]
+    pub match_marker_pitch: bool,
 }
 
 pub fn run(args: &ReproduceArgs) -> anyhow::Result<()> {
     let target = super::demo::sim_target(args.target.as_deref())?;
     let mut protocol = Protocol::new(args.scale);
+    protocol.translate.match_marker_pitch = args.match_marker_pitch;
     if let Some(n) = args.seeds {
         anyhow::ensure!(n >= 1, "--seeds must be at least 1");
         protocol.seeds = (1..=n).collect();

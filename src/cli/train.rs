@@ -142,8 +142,9 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
                 cfg.translate.steps_per_epoch = a.steps_per_epoch;
             }
             let spec = cfg.spec(Modality::RgbMarker);
-            let source =
-                data::load_labelled(&a.source, &spec, progress)?.seen_only(&cfg.data.split);
+            let zoom = crate::train::pitch::source_zoom(&cfg.translate, &a.source, &a.target)?;
+            let source = data::load_labelled_zoomed(&a.source, &spec, zoom, progress)?
+                .seen_only(&cfg.data.split);
             let target = data::load_unlabelled(&a.target, &spec, progress)?;
             // Before training: a damaged or missing explicitly named weights file stops here.
             let net = eval::load_inception(a.inception.as_deref(), cfg.fid.batch, false)?;

@@ -36,6 +36,10 @@ pub struct TranslateConfig {
     /// Iterations per epoch; by default one pass over the larger image set.
     pub steps_per_epoch: Option<usize>,
     pub seed: u64,
+    /// Magnify the source's frames by the ratio of the two sensors' marker pitches before
+    /// translating them ([`super::pitch`]), so that the translated markers can move with the
+    /// gel; the recordings' rig configs must give both pitches. Off by default.
+    pub match_marker_pitch: bool,
 }
 
 impl Default for TranslateConfig {
@@ -58,6 +62,7 @@ impl Default for TranslateConfig {
             epochs: 30,
             steps_per_epoch: None,
             seed: 1,
+            match_marker_pitch: false,
         }
     }
 }

@@ -302,6 +302,19 @@ pub fn role_of(dir: &Path) -> anyhow::Result<String> {
 /// Source-sensor or translated images with forces. A target-sensor dataset is refused: its
 /// forces exist only to evaluate.
 pub fn load_labelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result<LabelledSet> {
+    load_labelled_zoomed(dir, spec, 1.0, progress)
+}
+
+/// [`load_labelled`] with each recorded frame first magnified `zoom` times about its centre
+/// ([`super::pitch::zoom_about_centre`]; 1: as recorded). The translator's source images take
+/// this step when the two sensors' marker pitches are matched ([`super::pitch::pitch_zoom`]).
+/// A prepared dataset is already at the network's size and is loaded as it is.
+pub fn load_labelled_zoomed(
+    dir: &Path,
+    spec: &ImageSpec,
+    zoom: f64,
+    progress: bool,
+) -> anyhow::Result<LabelledSet> {
     let role = role_of(dir)?;
     if role == "target" {
         bail!(
@@ -310,7 +323,7 @@ pub fn load_labelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Re
             dir.display()
         );
     }
-    let loaded = load_any(dir, spec, true, progress)?;
+    let loaded = load_any(dir, spec, zoom, true, progress)?;
     let (trajectories, forces) = labelled_parts(loaded, dir)?;
     LabelledSet::from_parts(*spec, trajectories, forces)
 }
@@ -321,7 +334,7 @@ pub fn load_unlabelled(
     spec: &ImageSpec,
     progress: bool,
 ) -> anyhow::Result<UnlabelledSet> {
-    let loaded = load_any(dir, spec, false, progress)?;
+    let loaded = load_any(dir, spec, 1.0, false, progress)?;
     Ok(UnlabelledSet {
         spec: *spec,
         trajectories: loaded.into_iter().map(|l| l.traj).collect(),
@@ -330,7 +343,7 @@ pub fn load_unlabelled(
 
 /// Images with forces for evaluation, from any dataset that has forces.
 pub fn load_eval(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result<EvalSet> {
-    let loaded = load_any(dir, spec, true, progress)?;
+    let loaded = load_any(dir, spec, 1.0, true, progress)?;
     let (trajectories, forces) = labelled_parts(loaded, dir)?;
     EvalSet::from_parts(*spec, trajectories, forces)
 }
@@ -358,6 +371,7 @@ fn labelled_parts(
 fn load_any(
     dir: &Path,
     spec: &ImageSpec,
+    zoom: f64,
     want_forces: bool,
     progress: bool,
 ) -> anyhow::Result<Vec<Loaded>> {
@@ -367,7 +381,8 @@ fn load_any(
     let mut jobs = Vec::new();
     for run in find_runs(dir)? {
         let m = Manifest::load(&run).map_err(anyhow::Error::msg)?;
-        let params = marker_params(&m.config);
+        // Dots grow with the magnification.
+        let params = marker_params(&m.config).scaled(zoom as f32);
         for t in &m.trajectories {
             if t.status != Status::Complete {
                 continue;
@@ -395,7 +410,7 @@ fn load_any(
                     let Some((path, id, indenter, params)) = jobs.get(i) else {
                         break;
                     };
-                    let r = load_trajectory(path, id, indenter, spec, params, want_forces)
+                    let r = load_trajectory(path, id, indenter, spec, zoom, params, want_forces)
                         .with_context(|| format!("{}", path.display()));
                     bar.inc(1);
                     slots.lock().expect("loader poisoned")[i] = Some(r);
@@ -429,6 +444,7 @@ fn load_trajectory(
     id: &str,
     indenter: &str,
     spec: &ImageSpec,
+    zoom: f64,
     params: &MarkerParams,
     want_forces: bool,
 ) -> anyhow::Result<Loaded> {
@@ -445,10 +461,15 @@ fn load_trajectory(
         .unwrap_or(Path::new("."))
         .join(CACHE_DIR)
         .join(format!(
-            "{id}-{}x{}-{}.bin",
+            "{id}-{}x{}-{}{}.bin",
             spec.width,
             spec.height,
-            spec.modality.name().replace('+', "_")
+            spec.modality.name().replace('+', "_"),
+            if zoom == 1.0 {
+                String::new()
+            } else {
+                format!("-zoom{zoom:.4}")
+            }
         ));
     if let Some((pixels, frames, forces)) = read_cache(&cache, stamp, spec) {
         return Ok(Loaded {
@@ -488,6 +509,11 @@ fn load_trajectory(
     for (seq, (format, data)) in &images {
         let img = crate::record::png::decode_as(*format, data)
             .with_context(|| format!("frame {seq} is not a readable {}", format.as_str()))?;
+        let img = if zoom == 1.0 {
+            img
+        } else {
+            super::pitch::zoom_about_centre(&img, zoom)
+        };
         pixels.extend_from_slice(&prepare_image(&img, spec, params));
         forces.push(paired[seq]);
     }

@@ -309,14 +309,17 @@ pub(super) fn collect_workers() -> usize {
 /// Inception weights for FID/KID (default: [`super::inception::weights_path`]); without them at
 /// the default location the table says so and leaves FID/KID empty. `target` replaces the
 /// built-in simulated target sensor (its plan is set to the demo's like the built-in one's).
+/// `match_marker_pitch` sets [`TranslateConfig::match_marker_pitch`].
 pub fn run(
     quick: bool,
     out: &Path,
     inception: Option<&Path>,
     target: Option<&RigConfig>,
+    match_marker_pitch: bool,
 ) -> anyhow::Result<Table> {
     let progress = std::io::stderr().is_terminal();
-    let plan = DemoPlan::new(quick);
+    let mut plan = DemoPlan::new(quick);
+    plan.translate.match_marker_pitch = match_marker_pitch;
     // Before an hour of work: a damaged or missing explicitly named weights file stops here.
     let net = eval::load_inception(inception, plan.fid.batch, false)?;
     let t0 = std::time::Instant::now();
@@ -349,7 +352,8 @@ pub fn run(
         height: plan.spec.1,
         modality: Modality::RgbMarker,
     };
-    let source = data::load_labelled(&src_dir, &rgbm, progress)?.seen_only(&split);
+    let zoom = super::pitch::source_zoom(&plan.translate, &src_dir, &tgt_dir)?;
+    let source = data::load_labelled_zoomed(&src_dir, &rgbm, zoom, progress)?.seen_only(&split);
     let target_images = data::load_unlabelled(&tgt_dir, &rgbm, progress)?;
     // The translator sees target images of the seen indenters only.
     let mut target_seen = target_images.clone();

@@ -27,6 +27,7 @@ pub mod inception;
 pub mod metrics;
 pub mod modality;
 pub mod nn;
+pub mod pitch;
 pub mod report;
 pub mod reproduce;
 

@@ -514,7 +514,8 @@ fn translate_and_fid(
     };
     let tdir = out.join("translate");
     let done = tdir.join("DONE");
-    let source_all = data::load_labelled(&src_dir, &rgbm, progress)?;
+    let zoom = super::pitch::source_zoom(&protocol.translate, &src_dir, &tgt_dir)?;
+    let source_all = data::load_labelled_zoomed(&src_dir, &rgbm, zoom, progress)?;
     let (source_seen, source_unseen) = partition(source_all, &split);
     let target_images = data::load_unlabelled(&tgt_dir, &rgbm, progress)?;
     let translating = !done.is_file();

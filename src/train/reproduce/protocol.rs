@@ -182,7 +182,9 @@ impl Protocol {
                 // learnt shear at the source's 0.9 mm, a little at 1.0 and none at 0.7 or 1.1,
                 // whatever the lattice's shape or jitter. At this scale with 0.9 mm hexagons
                 // TransForce learnt some Fx (R² 0.20 seen) and little Fy, ×1.2-1.4 better than
-                // source-only on shear (README, Benchmarks, *The protocol's runs*).
+                // source-only on shear (README, Benchmarks, *The protocol's runs*). Magnifying
+                // the source's frames by the pitches' ratio instead (`--match-marker-pitch`, off
+                // by default) let shear cross in the quick demo and cost Fz (README, same place).
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
