@@ -155,7 +155,16 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
                 &a.out,
                 Progress::bar_or_lines(progress),
             )?;
-            let (source_images, translated_images) = (source.images(), t.set.images());
+            // I_s is the source sensor's own frames, also when the translator saw them magnified.
+            let source_images = if zoom == 1.0 {
+                source.images()
+            } else {
+                let mut raw = data::load_unlabelled(&a.source, &spec, progress)?;
+                raw.trajectories
+                    .retain(|t| cfg.data.split.trains_on(&t.indenter));
+                raw
+            };
+            let translated_images = t.set.images();
             let mut table = report::Table {
                 fid: eval::translation_fid(
                     [&source_images, &target, &translated_images],

@@ -1,17 +1,23 @@
 //! `rig reproduce` at its tiny scale: the whole protocol (collection on two sensors, the
 //! translator, FID for seen and unseen, 3 methods × 3 modalities, evaluation, verdicts, sample
 //! grids and figures) runs and writes its report; run again into the same `--out`, it redoes nothing but
-//! the evaluation and gives the same numbers.
+//! the evaluation and gives the same numbers; with `--match-marker-pitch` FID's I_s stays the
+//! source's own frames.
 
 use std::process::Command;
 
 use crate::common;
 
 fn reproduce(out: &std::path::Path) -> std::process::Output {
+    reproduce_with(out, &[])
+}
+
+fn reproduce_with(out: &std::path::Path, extra: &[&str]) -> std::process::Output {
     let _rig = common::one_rig_at_a_time();
     Command::new(env!("CARGO_BIN_EXE_rig"))
         .args(["reproduce", "--scale", "tiny", "--out"])
         .arg(out)
+        .args(extra)
         .output()
         .unwrap()
 }
@@ -123,6 +129,50 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
     let again: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("results/rows.json")).unwrap()).unwrap();
     assert_eq!(again["aggregate"], json["aggregate"]);
+
+    // With the marker pitches matched, on the same recordings (hard links): the translator sees
+    // the source magnified, but FID's I_s is still the source sensor's own frames, so the
+    // I_s–I_t rows are those of the run without it, and the translation's rows are not.
+    let pitched = dir.path().join("pitched");
+    link_tree(&out.join("data"), &pitched.join("data"));
+    let third = reproduce_with(&pitched, &["--match-marker-pitch"]);
+    assert!(third.status.success(), "{}", common::output_text(&third));
+    let stderr = String::from_utf8_lossy(&third.stderr);
+    assert!(stderr.contains("magnified 1.222 ×"), "{stderr}");
+    let p: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(pitched.join("results/rows.json")).unwrap()).unwrap();
+    let row = |j: &serde_json::Value, group: &str, pair: &str| {
+        j["fid"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|f| f["group"] == group && f["pair"] == pair)
+            .unwrap()
+            .clone()
+    };
+    for group in ["seen", "unseen"] {
+        assert_eq!(row(&p, group, "I_s–I_t"), row(&json, group, "I_s–I_t"));
+        let (a, b) = (row(&p, group, "Î_t–I_t"), row(&json, group, "Î_t–I_t"));
+        // FID where the weights are installed, the colour statistics always.
+        assert_ne!(a["colour_fd"], b["colour_fd"], "{group}: {a} {b}");
+        if !a["fid"].is_null() {
+            assert_ne!(a["fid"], b["fid"], "{group}: {a} {b}");
+        }
+    }
+}
+
+/// `from` rebuilt under `to`, every file a hard link.
+fn link_tree(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dest = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            link_tree(&e.path(), &dest);
+        } else {
+            std::fs::hard_link(e.path(), dest).unwrap();
+        }
+    }
 }
 
 /// Without Inception weights, the two-hour scale stops before it records anything and says how

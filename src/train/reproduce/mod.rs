@@ -562,7 +562,13 @@ fn translate_and_fid(
             (rows, notes, false)
         }
         _ => {
-            let source_images = images_of(&source_seen, &source_unseen);
+            // I_s is the source sensor's own frames, also when the translator saw them magnified
+            // (`--match-marker-pitch`), as in `rig demo`.
+            let source_images = if zoom == 1.0 {
+                images_of(&source_seen, &source_unseen)
+            } else {
+                data::load_unlabelled(&src_dir, &rgbm, progress)?
+            };
             let translated_images = images_of(&translated_seen, &translated_unseen);
             let rows = eval::translation_fid(
                 [&source_images, &target_images, &translated_images],
