@@ -217,15 +217,31 @@ pub(super) fn border_into<'a>(
     }
     // The bottom row after its left pixel, and the spare pixels.
     dst[((h + 1) * wp + 1) * c..].fill(zero);
-    for ci in 0..c {
-        for (y, row) in src[ci * h * w..][..h * w].chunks_exact(w).enumerate() {
-            let at = ((y + 1) * wp + 1) * c + ci;
-            for (x, &v) in row.iter().enumerate() {
-                dst[at + x * c].write(v);
+    // The interior, a transpose from channel planes to pixels, a block of `BLOCK` pixels of
+    // one row at a time: the block's `BLOCK · c` floats stay in the L1 cache while the `c`
+    // planes are read into them. Writing a whole plane at a time instead, `c` floats apart,
+    // touched a new cache line with every write and took 8 % of a ResNet-18 training step.
+    const BLOCK: usize = 16;
+    let plane = h * w;
+    assert!(
+        src.len() >= c * plane,
+        "border: {} floats for {c} × {h} × {w}",
+        src.len()
+    );
+    for y in 0..h {
+        let row = &mut dst[((y + 1) * wp + 1) * c..][..w * c];
+        for x0 in (0..w).step_by(BLOCK) {
+            let xs = (w - x0).min(BLOCK);
+            let block = &mut row[x0 * c..][..xs * c];
+            for ci in 0..c {
+                let from = &src[ci * plane + y * w + x0..][..xs];
+                for (px, &v) in block.chunks_exact_mut(c).zip(from) {
+                    px[ci].write(v);
+                }
             }
         }
     }
-    // SAFETY: the fills cover the border pixels and the spare ones, the loop every interior
+    // SAFETY: the fills cover the border pixels and the spare ones, the copy every interior
     // pixel's `c` floats: together every element of `dst`.
     unsafe { &mut *(dst as *mut [MaybeUninit<f32>] as *mut [f32]) }
 }
@@ -260,11 +276,19 @@ pub(super) fn unborder(
     [n, h, w]: [usize; 3],
     mut put: impl FnMut(usize, usize, f32),
 ) {
+    // A block of pixels of one row at a time, as [`border_into`] copies the other way: the
+    // block's `16 · n` floats stay in the L1 cache while each channel's run is put.
+    const BLOCK: usize = 16;
     let wp = w + 2;
-    for o in 0..n {
-        for y in 0..h {
-            for x in 0..w {
-                put(o, (o * h + y) * w + x, wide[(y * wp + x) * n + o]);
+    for y in 0..h {
+        for x0 in (0..w).step_by(BLOCK) {
+            let xs = (w - x0).min(BLOCK);
+            let block = &wide[(y * wp + x0) * n..][..xs * n];
+            for o in 0..n {
+                let at = (o * h + y) * w + x0;
+                for (dx, px) in block.chunks_exact(n).enumerate() {
+                    put(o, at + dx, px[o]);
+                }
             }
         }
     }
@@ -304,4 +328,63 @@ pub(super) fn taps_major(w: &[f32], [o, c, k]: [usize; 3], flipped: bool) -> Vec
         });
     // SAFETY: the `kk` blocks of `c · o` cover `out`, each written in full.
     unsafe { written(out) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every float of a bordered image against its definition: pixel (y, x) of the padded
+    /// `(h + 2) × (w + 2)` grid holds channel `ci` of image pixel (y − 1, x − 1) inside, zero
+    /// on the border and in the two spare pixels; widths across and off the copy's blocks.
+    #[test]
+    fn a_bordered_image_holds_each_pixel_channels_last_inside_a_zero_border() {
+        for [c, h, w] in [[1, 1, 1], [3, 5, 37], [16, 4, 16], [5, 3, 33], [2, 2, 15]] {
+            let src: Vec<f32> = (0..c * h * w).map(|i| i as f32 + 1.0).collect();
+            // A reused buffer: stale values must not survive on the border.
+            let mut dst = vec![f32::NAN; bordered_len([c, h, w])];
+            border(&src, [c, h, w], &mut dst);
+            let wp = w + 2;
+            for (i, &v) in dst.iter().enumerate() {
+                let (px, ci) = (i / c, i % c);
+                let (y, x) = (px / wp, px % wp);
+                let inside = (1..=h).contains(&y) && (1..=w).contains(&x);
+                let want = if inside {
+                    src[ci * h * w + (y - 1) * w + (x - 1)]
+                } else {
+                    0.0
+                };
+                assert_eq!(
+                    v, want,
+                    "c {c}, {h} × {w}: float {i} (pixel {y}, {x}, channel {ci})"
+                );
+            }
+        }
+    }
+
+    /// [`unborder`] puts every valid column of a padded-width channels-last product once, at its
+    /// NCHW index, and none of the two discarded columns a row.
+    #[test]
+    fn unborder_puts_each_valid_pixel_once_at_its_planar_index() {
+        for [n, h, w] in [[1, 1, 1], [3, 5, 37], [16, 4, 16], [4, 2, 17]] {
+            let wp = w + 2;
+            let wide: Vec<f32> = (0..h * wp * n).map(|i| i as f32).collect();
+            let mut out = vec![f32::NAN; n * h * w];
+            let mut puts = 0;
+            unborder(&wide, [n, h, w], |o, i, v| {
+                assert_eq!(i / (h * w), o, "index {i} is not in channel {o}'s plane");
+                assert!(out[i].is_nan(), "index {i} put twice");
+                out[i] = v;
+                puts += 1;
+            });
+            assert_eq!(puts, n * h * w);
+            for o in 0..n {
+                for y in 0..h {
+                    for x in 0..w {
+                        assert_eq!(out[(o * h + y) * w + x], wide[(y * wp + x) * n + o]);
+                    }
+                }
+            }
+        }
+    }
 }
