@@ -172,6 +172,10 @@ pub(super) fn product_into(
     }
 }
 
+/// Pixels of one row that [`border_into`] and [`unborder`] move together between the planar
+/// and the channels-last layouts: at most 16 × 128 floats (8 KiB) for a ResNet's widest layer.
+const PIXEL_BLOCK: usize = 16;
+
 /// Floats of an image `c × h × w` once [`border`]ed: `(h + 2) × (w + 2)` pixels and two spare.
 pub(super) fn bordered_len([c, h, w]: [usize; 3]) -> usize {
     ((h + 2) * (w + 2) + 2) * c
@@ -217,11 +221,10 @@ pub(super) fn border_into<'a>(
     }
     // The bottom row after its left pixel, and the spare pixels.
     dst[((h + 1) * wp + 1) * c..].fill(zero);
-    // The interior, a transpose from channel planes to pixels, a block of `BLOCK` pixels of
-    // one row at a time: the block's `BLOCK · c` floats stay in the L1 cache while the `c`
-    // planes are read into them. Writing a whole plane at a time instead, `c` floats apart,
-    // touched a new cache line with every write and took 8 % of a ResNet-18 training step.
-    const BLOCK: usize = 16;
+    // The interior, a transpose from channel planes to pixels, [`PIXEL_BLOCK`] pixels of one
+    // row at a time: the block's floats stay in the L1 cache while the `c` planes are read into
+    // them. Writing a whole plane at a time instead, `c` floats apart, touched a new cache line
+    // with every write and took 8 % of a ResNet-18 training step.
     let plane = h * w;
     assert!(
         src.len() >= c * plane,
@@ -230,8 +233,8 @@ pub(super) fn border_into<'a>(
     );
     for y in 0..h {
         let row = &mut dst[((y + 1) * wp + 1) * c..][..w * c];
-        for x0 in (0..w).step_by(BLOCK) {
-            let xs = (w - x0).min(BLOCK);
+        for x0 in (0..w).step_by(PIXEL_BLOCK) {
+            let xs = (w - x0).min(PIXEL_BLOCK);
             let block = &mut row[x0 * c..][..xs * c];
             for ci in 0..c {
                 let from = &src[ci * plane + y * w + x0..][..xs];
@@ -276,13 +279,12 @@ pub(super) fn unborder(
     [n, h, w]: [usize; 3],
     mut put: impl FnMut(usize, usize, f32),
 ) {
-    // A block of pixels of one row at a time, as [`border_into`] copies the other way: the
-    // block's `16 · n` floats stay in the L1 cache while each channel's run is put.
-    const BLOCK: usize = 16;
+    // [`PIXEL_BLOCK`] pixels of one row at a time, as [`border_into`] copies the other way:
+    // the block's floats stay in the L1 cache while each channel's run is put.
     let wp = w + 2;
     for y in 0..h {
-        for x0 in (0..w).step_by(BLOCK) {
-            let xs = (w - x0).min(BLOCK);
+        for x0 in (0..w).step_by(PIXEL_BLOCK) {
+            let xs = (w - x0).min(PIXEL_BLOCK);
             let block = &wide[(y * wp + x0) * n..][..xs * n];
             for o in 0..n {
                 let at = (o * h + y) * w + x0;
