@@ -26,6 +26,7 @@ mod conv;
 mod fast;
 mod kernels;
 mod norm;
+mod simd;
 mod wino;
 pub use conv::conv2d;
 pub use fast::FastEncoder;

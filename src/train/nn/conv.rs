@@ -53,7 +53,7 @@ use rayon::prelude::*;
 
 use super::kernels::{
     Mat, as_slots, border, border_into, bordered_len, dense, flex, product, sum_of, taps_major,
-    three_rows, unborder, unwritten, written, zeroed,
+    three_rows, three_rows_grad, unborder, unwritten, written, zeroed,
 };
 use super::wino;
 
@@ -546,7 +546,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                 // with the turned kernel (`wd`), and the weight gradient for kernel row `ky` is
                 // `L_kyᵀ · dy` on the padded width (whose discarded columns are the border's
                 // zeros in `dyb`).
-                let (wp, kr) = (g.w + 2, 3 * g.c);
+                let wp = g.w + 2;
                 let m = g.h * wp;
                 // Through Winograd, `dy` is bordered into the next slot of `dgroup`, and the
                 // input gradients of the group are computed together once it is full.
@@ -571,12 +571,8 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                             &col
                         }
                     };
-                    let dy_wide = Mat::rows(&dyb[(wp + 1) * g.o..][..m * g.o], g.o);
-                    for ky in 0..3 {
-                        let lhs = Mat::overlapping(&pad[ky * wp * g.c..], [m, kr], g.c).t();
-                        let dw_ky = &mut dw[ky * kr * g.o..][..kr * g.o];
-                        product(dw_ky, [kr, g.o, m], true, lhs, dy_wide, par);
-                    }
+                    let dy_wide = &dyb[(wp + 1) * g.o..][..m * g.o];
+                    three_rows_grad(pad, [wp, g.c, m], dy_wide, g.o, &mut dw, par);
                 }
                 if let (Some(dx), Some(ud)) = (dx.as_deref_mut(), &wino_d) {
                     pending += 1;

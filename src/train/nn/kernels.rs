@@ -11,6 +11,8 @@ use burn::tensor::TensorData;
 use gemm::Parallelism;
 use rayon::prelude::*;
 
+use super::simd;
+
 pub(super) fn dense(t: &FlexTensor) -> Cow<'_, [f32]> {
     match t.as_slice::<f32>() {
         Some(s) => Cow::Borrowed(s),
@@ -265,10 +267,47 @@ pub(super) fn three_rows(
 ) {
     let kr = 3 * c;
     assert_eq!(w.len(), 3 * kr * n, "three_rows: weights of another shape");
+    if simd::covers(n) {
+        return simd::three_rows(pad, [wp, c, m], w, n, dst, par);
+    }
     for ky in 0..3 {
         let lhs = Mat::overlapping(&pad[ky * wp * c..], [m, kr], c);
         let rhs = Mat::rows(&w[ky * kr * n..][..kr * n], n);
         product(dst, [m, n, kr], ky > 0, lhs, rhs, par);
+    }
+}
+
+/// `dw += Σ_ky L_kyᵀ · dy`, the weight gradient of [`three_rows`]'s product: `dw` as its
+/// weights, `[9c, n]` with rows in (ky, kx, ci) order, and `dy` `[m, n]` on the padded width
+/// (its discarded columns zero, so that they add nothing).
+pub(super) fn three_rows_grad(
+    pad: &[f32],
+    [wp, c, m]: [usize; 3],
+    dy: &[f32],
+    n: usize,
+    dw: &mut [f32],
+    par: Parallelism,
+) {
+    let kr = 3 * c;
+    assert_eq!(
+        dw.len(),
+        3 * kr * n,
+        "three_rows_grad: weights of another shape"
+    );
+    if simd::covers(n) {
+        return simd::three_rows_grad(pad, [wp, c, m], dy, n, dw, par);
+    }
+    let dy = Mat::rows(&dy[..m * n], n);
+    for ky in 0..3 {
+        let lhs = Mat::overlapping(&pad[ky * wp * c..], [m, kr], c).t();
+        product(
+            &mut dw[ky * kr * n..][..kr * n],
+            [kr, n, m],
+            true,
+            lhs,
+            dy,
+            par,
+        );
     }
 }
 
