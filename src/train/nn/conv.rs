@@ -29,6 +29,8 @@
 //! instead ([`wino`]: 2.25× fewer multiplications, a group of images per product). Images are
 //! shared out over the rayon pool (one product per image on one thread); a batch smaller than
 //! the pool runs its products multi-threaded instead. Transposes are strides handed to `gemm`.
+//! The 3 × 3 path's products whose output channels come in sixteens run instead on the direct
+//! AVX-512 kernels of [`super::simd`] where the CPU has them.
 //!
 //! [`conv2d`] takes this path for f32 tensors on the flex device, with or without autodiff, for
 //! any convolution with a bias, square kernel and stride, symmetric zero padding, no dilation
