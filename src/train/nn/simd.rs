@@ -165,9 +165,39 @@ mod x86 {
 
     use super::{LANES, TILE, slots};
 
-    /// Output rows `first..` of the forward product into `part` (whole rows of `n` floats),
-    /// column blocks of up to 64 channels, tiles of `TILE / NB` rows and smaller ones for the
-    /// rest.
+    /// Walks a product of `len` rows (output pixels, or taps) × `n` channels in tiles: column
+    /// blocks of up to 64 channels, each in tiles of `TILE / NB` rows and smaller ones for the
+    /// rest. `$tile!(P, NB, col, at)` computes the `P` rows from `at` of the `16·NB` columns
+    /// from `col`, and evaluates to `P`.
+    macro_rules! walk_tiles {
+        ($n:expr, $len:expr, $tile:ident) => {{
+            let (n, len): (usize, usize) = ($n, $len);
+            let mut col = 0;
+            while col < n {
+                let blocks = ((n - col) / LANES).min(4);
+                let mut at = 0;
+                while at < len {
+                    at += match (blocks, len - at) {
+                        (4, l) if l >= TILE / 4 => $tile!(6, 4, col, at),
+                        (4, _) => $tile!(1, 4, col, at),
+                        (2 | 3, l) if l >= TILE / 2 => $tile!(12, 2, col, at),
+                        (2 | 3, _) => $tile!(1, 2, col, at),
+                        (_, l) if l >= TILE => $tile!(24, 1, col, at),
+                        (_, l) if l >= 8 => $tile!(8, 1, col, at),
+                        _ => $tile!(1, 1, col, at),
+                    };
+                }
+                col += match blocks {
+                    4 => 4,
+                    2 | 3 => 2,
+                    _ => 1,
+                } * LANES;
+            }
+        }};
+    }
+
+    /// Output rows `first..` of the forward product into `part` (whole rows of `n` floats), in
+    /// the tiles of `walk_tiles`.
     ///
     /// # Safety
     /// AVX-512F must be present; `pad` must hold [`super::reach`] of rows up to the last of
@@ -183,42 +213,22 @@ mod x86 {
     ) {
         let rows = part.len() / n;
         let dst = slots(part).as_mut_ptr().cast::<f32>();
-        let mut col = 0;
-        while col < n {
-            let blocks = ((n - col) / LANES).min(4);
-            let mut row = 0;
-            while row < rows {
-                let left = rows - row;
-                // SAFETY (each arm): the tile's rows `row..row + P` are within `part`, its
-                // columns `col..col + 16·NB` within `n`, and what it reads of `pad` and `w`
-                // is within what the caller guarantees.
-                let done = unsafe {
-                    let src = pad.as_ptr().add((first + row) * c);
-                    let (wc, d) = (w.as_ptr().add(col), dst.add(row * n + col));
-                    macro_rules! tile {
-                        ($p:expr, $nb:expr) => {{
-                            forward_tile::<$p, $nb>(src, [wp, c], wc, n, d);
-                            $p
-                        }};
-                    }
-                    match (blocks, left) {
-                        (4, l) if l >= TILE / 4 => tile!(6, 4),
-                        (4, _) => tile!(1, 4),
-                        (2 | 3, l) if l >= TILE / 2 => tile!(12, 2),
-                        (2 | 3, _) => tile!(1, 2),
-                        (_, l) if l >= TILE => tile!(24, 1),
-                        (_, l) if l >= 8 => tile!(8, 1),
-                        _ => tile!(1, 1),
-                    }
-                };
-                row += done;
-            }
-            col += match blocks {
-                4 => 4,
-                2 | 3 => 2,
-                _ => 1,
-            } * LANES;
+        // One tile: rows `row..row + P` (within `part`), columns `col..col + 16·NB` (within
+        // `n`).
+        macro_rules! tile {
+            ($p:expr, $nb:expr, $col:expr, $row:expr) => {{
+                // SAFETY: the tile's rows and columns are within `part` (as `walk_tiles`
+                // hands them out), and what it reads of `pad` and `w` is within what the
+                // caller guarantees.
+                unsafe {
+                    let src = pad.as_ptr().add((first + $row) * c);
+                    let (wc, d) = (w.as_ptr().add($col), dst.add($row * n + $col));
+                    forward_tile::<$p, $nb>(src, [wp, c], wc, n, d);
+                }
+                $p
+            }};
         }
+        walk_tiles!(n, rows, tile);
     }
 
     /// `P` output rows × `16·NB` channels: `Σ_ky Σ_t pad[(ky·wp + i)·c + t] · w[ky·3c + t]`.
@@ -264,8 +274,7 @@ mod x86 {
     }
 
     /// One kernel row's weight gradient: `part[t, :] += Σ_p rows[p·c + t] · dy[p, :]` for the
-    /// `3c` taps `t`, column blocks of up to 64 channels, tiles of `TILE / NB` taps and smaller
-    /// ones for the rest.
+    /// `3c` taps `t`, in the tiles of `walk_tiles`.
     ///
     /// # Safety
     /// AVX-512F; `rows` holds `(m − 1)·c + 3c` floats, `dy` `m × n`, `part` `3c × n`.
@@ -277,43 +286,21 @@ mod x86 {
         n: usize,
         part: &mut [f32],
     ) {
-        let kr = 3 * c;
         let dst = slots(part).as_mut_ptr().cast::<f32>();
-        let mut col = 0;
-        while col < n {
-            let blocks = ((n - col) / LANES).min(4);
-            let mut t = 0;
-            while t < kr {
-                let left = kr - t;
-                // SAFETY (each arm): taps `t..t + T` < 3c, columns within `n`, reads within
-                // what the caller guarantees.
-                let done = unsafe {
-                    let (src, dyc) = (rows.as_ptr().add(t), dy.as_ptr().add(col));
-                    let d = dst.add(t * n + col);
-                    macro_rules! tile {
-                        ($t:expr, $nb:expr) => {{
-                            grad_tile::<$t, $nb>(src, [c, m], dyc, n, d);
-                            $t
-                        }};
-                    }
-                    match (blocks, left) {
-                        (4, l) if l >= TILE / 4 => tile!(6, 4),
-                        (4, _) => tile!(1, 4),
-                        (2 | 3, l) if l >= TILE / 2 => tile!(12, 2),
-                        (2 | 3, _) => tile!(1, 2),
-                        (_, l) if l >= TILE => tile!(24, 1),
-                        (_, l) if l >= 8 => tile!(8, 1),
-                        _ => tile!(1, 1),
-                    }
-                };
-                t += done;
-            }
-            col += match blocks {
-                4 => 4,
-                2 | 3 => 2,
-                _ => 1,
-            } * LANES;
+        // One tile: taps `t..t + T` (within `3c`), columns `col..col + 16·NB` (within `n`).
+        macro_rules! tile {
+            ($t:expr, $nb:expr, $col:expr, $at:expr) => {{
+                // SAFETY: the tile's taps and columns are within `part` (as `walk_tiles` hands
+                // them out), and what it reads of `rows` and `dy` is within what the caller
+                // guarantees.
+                unsafe {
+                    let (src, dyc) = (rows.as_ptr().add($at), dy.as_ptr().add($col));
+                    grad_tile::<$t, $nb>(src, [c, m], dyc, n, dst.add($at * n + $col));
+                }
+                $t
+            }};
         }
+        walk_tiles!(n, 3 * c, tile);
     }
 
     /// `T` taps × `16·NB` channels of one kernel row's weight gradient, added into `dst`.
