@@ -55,7 +55,7 @@ use rayon::prelude::*;
 
 use super::kernels::{
     Mat, as_slots, border, border_into, bordered_len, dense, flex, product, sum_of, taps_major,
-    three_rows, three_rows_grad, unborder, unwritten, written, zeroed,
+    three_rows, three_rows_grad, unborder_into, unwritten, written, zeroed,
 };
 use super::wino;
 
@@ -411,9 +411,7 @@ fn forward(
             };
             wide.resize(g.h * wp * g.o, 0.0);
             three_rows(pad, [wp, g.c, g.h * wp], wk, g.o, wide, par);
-            unborder(wide, [g.o, g.h, g.w], |o, at, v| {
-                y_n[at].write(v + bias(o));
-            });
+            unborder_into(wide, [g.o, g.h, g.w], b, y_n);
             return;
         }
         // The bias first; the product adds onto it.
@@ -493,7 +491,7 @@ fn forward(
         None => ys.for_each(|(c, ys)| worker(c, ys, None)),
     }
     // SAFETY: the chunks cover `y` and `per_image` writes every element of its image (the
-    // 3 × 3 path through `unborder`, which puts every index of `o × h × w`, and here
+    // 3 × 3 path through `unborder_into`, which writes every index of `o × h × w`, and here
     // `ho × wo = h × w`), as `winograd` does for each image of its groups (`wino::convolve`
     // puts every index of each image's `o × h × w`); the chunks of `kept` match those of `y`
     // image for image, and `border_into` writes every element of its slot.
@@ -599,9 +597,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                     let dx_n = &mut dx[j * g.image()..][..g.image()];
                     wide.resize(m * g.c, 0.0);
                     three_rows(dyb, [wp, g.o, m], wd, g.c, &mut wide, par);
-                    unborder(&wide, [g.c, g.h, g.w], |_, at, v| {
-                        dx_n[at].write(v);
-                    });
+                    unborder_into(&wide, [g.c, g.h, g.w], None, dx_n);
                 }
                 continue;
             }
@@ -676,7 +672,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
     }
     Grads {
         // SAFETY: the chunks cover `dx`, and `work` writes every element of each image it is
-        // given: the 3 × 3 path through `unborder` (every index of `c × h × w`) or, for its
+        // given: the 3 × 3 path through `unborder_into` (every index of `c × h × w`) or, for its
         // groups, `wino::convolve` (every index of each image's `c × h × w`, the last group
         // flushed at the worker's last image), the others zero the image first (`zeroed`).
         dx: dx.map(|v| unsafe { written(v) }),

@@ -174,7 +174,7 @@ pub(super) fn product_into(
     }
 }
 
-/// Pixels of one row that [`border_into`] and [`unborder`] move together between the planar
+/// Pixels of one row that [`border_into`] and [`unborder_into`] move together between the planar
 /// and the channels-last layouts: at most 16 × 128 floats (8 KiB) for a ResNet's widest layer.
 const PIXEL_BLOCK: usize = 16;
 
@@ -233,11 +233,18 @@ pub(super) fn border_into<'a>(
         "border: {} floats for {c} × {h} × {w}",
         src.len()
     );
+    // With channels in sixteens on AVX-512, each whole block is transposed in registers
+    // ([`simd::to_pixels`]).
+    let in_registers = simd::transposes(c);
     for y in 0..h {
         let row = &mut dst[((y + 1) * wp + 1) * c..][..w * c];
         for x0 in (0..w).step_by(PIXEL_BLOCK) {
             let xs = (w - x0).min(PIXEL_BLOCK);
             let block = &mut row[x0 * c..][..xs * c];
+            if in_registers && xs == PIXEL_BLOCK {
+                simd::to_pixels(&src[y * w + x0..], plane, c, block);
+                continue;
+            }
             for ci in 0..c {
                 let from = &src[ci * plane + y * w + x0..][..xs];
                 for (px, &v) in block.chunks_exact_mut(c).zip(from) {
@@ -312,23 +319,43 @@ pub(super) fn three_rows_grad(
 }
 
 /// The valid columns of a channels-last product on the padded width (`h × (w + 2)` pixels of
-/// `n` floats) back in NCHW order: `put(channel, index, value)` for every index of `n × h × w`.
-pub(super) fn unborder(
+/// `n` floats) back in NCHW order, with `bias[o]` added to channel `o` if given: every element
+/// of `dst`'s `n × h × w` is written.
+pub(super) fn unborder_into(
     wide: &[f32],
     [n, h, w]: [usize; 3],
-    mut put: impl FnMut(usize, usize, f32),
+    bias: Option<&[f32]>,
+    dst: &mut [MaybeUninit<f32>],
 ) {
+    let (wp, plane) = (w + 2, h * w);
+    assert!(
+        dst.len() >= n * plane && wide.len() >= (h * wp).saturating_sub(2) * n,
+        "unborder: {} and {} floats for {n} × {h} × {w}",
+        wide.len(),
+        dst.len()
+    );
+    assert!(
+        bias.is_none_or(|b| b.len() >= n),
+        "unborder: a bias per channel"
+    );
     // [`PIXEL_BLOCK`] pixels of one row at a time, as [`border_into`] copies the other way:
-    // the block's floats stay in the L1 cache while each channel's run is put.
-    let wp = w + 2;
+    // the block's floats stay in the L1 cache while each channel's run is put; with channels
+    // in sixteens on AVX-512 each whole block is transposed in registers ([`simd::to_planes`]).
+    let in_registers = simd::transposes(n);
     for y in 0..h {
         for x0 in (0..w).step_by(PIXEL_BLOCK) {
             let xs = (w - x0).min(PIXEL_BLOCK);
             let block = &wide[(y * wp + x0) * n..][..xs * n];
+            if in_registers && xs == PIXEL_BLOCK {
+                simd::to_planes(block, n, bias, plane, &mut dst[y * w + x0..]);
+                continue;
+            }
             for o in 0..n {
                 let at = (o * h + y) * w + x0;
-                for (dx, px) in block.chunks_exact(n).enumerate() {
-                    put(o, at + dx, px[o]);
+                let run = dst[at..at + xs].iter_mut().zip(block.chunks_exact(n));
+                match bias {
+                    Some(b) => run.for_each(|(d, px)| _ = d.write(px[o] + b[o])),
+                    None => run.for_each(|(d, px)| _ = d.write(px[o])),
                 }
             }
         }
@@ -380,7 +407,15 @@ mod tests {
     /// on the border and in the two spare pixels; widths across and off the copy's blocks.
     #[test]
     fn a_bordered_image_holds_each_pixel_channels_last_inside_a_zero_border() {
-        for [c, h, w] in [[1, 1, 1], [3, 5, 37], [16, 4, 16], [5, 3, 33], [2, 2, 15]] {
+        for [c, h, w] in [
+            [1, 1, 1],
+            [3, 5, 37],
+            [16, 4, 16],
+            [5, 3, 33],
+            [2, 2, 15],
+            [32, 3, 37],
+            [48, 2, 16],
+        ] {
             let src: Vec<f32> = (0..c * h * w).map(|i| i as f32 + 1.0).collect();
             // A reused buffer: stale values must not survive on the border.
             let mut dst = vec![f32::NAN; bordered_len([c, h, w])];
@@ -403,26 +438,37 @@ mod tests {
         }
     }
 
-    /// [`unborder`] puts every valid column of a padded-width channels-last product once, at its
-    /// NCHW index, and none of the two discarded columns a row.
+    /// [`unborder_into`] writes every valid column of a padded-width channels-last product once,
+    /// at its NCHW index with its channel's bias, and none of the two discarded columns a row;
+    /// channel counts on and off the register transpose, widths across and off its blocks.
     #[test]
     fn unborder_puts_each_valid_pixel_once_at_its_planar_index() {
-        for [n, h, w] in [[1, 1, 1], [3, 5, 37], [16, 4, 16], [4, 2, 17]] {
+        for [n, h, w] in [
+            [1, 1, 1],
+            [3, 5, 37],
+            [16, 4, 16],
+            [4, 2, 17],
+            [32, 3, 40],
+            [48, 2, 16],
+        ] {
             let wp = w + 2;
             let wide: Vec<f32> = (0..h * wp * n).map(|i| i as f32).collect();
-            let mut out = vec![f32::NAN; n * h * w];
-            let mut puts = 0;
-            unborder(&wide, [n, h, w], |o, i, v| {
-                assert_eq!(i / (h * w), o, "index {i} is not in channel {o}'s plane");
-                assert!(out[i].is_nan(), "index {i} put twice");
-                out[i] = v;
-                puts += 1;
-            });
-            assert_eq!(puts, n * h * w);
-            for o in 0..n {
-                for y in 0..h {
-                    for x in 0..w {
-                        assert_eq!(out[(o * h + y) * w + x], wide[(y * wp + x) * n + o]);
+            let bias: Vec<f32> = (0..n).map(|o| 0.5 + 1000.0 * o as f32).collect();
+            for with_bias in [false, true] {
+                let mut out = vec![f32::NAN; n * h * w];
+                let b = with_bias.then_some(bias.as_slice());
+                unborder_into(&wide, [n, h, w], b, as_slots(&mut out));
+                for o in 0..n {
+                    let add = if with_bias { bias[o] } else { 0.0 };
+                    for y in 0..h {
+                        for x in 0..w {
+                            let want = wide[(y * wp + x) * n + o] + add;
+                            assert_eq!(
+                                out[(o * h + y) * w + x],
+                                want,
+                                "{n} × {h} × {w} at {o}, {y}, {x}"
+                            );
+                        }
                     }
                 }
             }

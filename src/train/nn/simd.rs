@@ -150,6 +150,66 @@ pub(super) fn three_rows_grad(
     }
 }
 
+/// Whether [`to_pixels`] and [`to_planes`] take the 16 × 16 register transpose for `c`
+/// channels here: `c` a multiple of 16 and AVX-512F present.
+pub(super) fn transposes(c: usize) -> bool {
+    c > 0 && c.is_multiple_of(LANES) && has_avx512()
+}
+
+/// Sixteen pixels of `c` planes `stride` floats apart into channels-last order:
+/// `dst[px·c + ci] = src[ci·stride + px]` for `px < 16`, `ci < c` ([`transposes`] must hold).
+/// The NCHW to channels-last copy of [`super::kernels::border_into`], a block of 16 × 16 floats
+/// at a time in registers instead of one float at a time.
+pub(super) fn to_pixels(src: &[f32], stride: usize, c: usize, dst: &mut [MaybeUninit<f32>]) {
+    assert!(
+        transposes(c),
+        "simd::to_pixels: {c} channels, or no AVX-512 here"
+    );
+    assert!(
+        src.len() >= (c - 1) * stride + LANES && dst.len() >= LANES * c,
+        "simd::to_pixels: {} and {} floats for 16 pixels of {c} planes {stride} apart",
+        src.len(),
+        dst.len()
+    );
+    // SAFETY: AVX-512F is present (`transposes`); the reads and writes stay within the lengths
+    // asserted above.
+    #[cfg(target_arch = "x86_64")]
+    unsafe {
+        x86::to_pixels(src.as_ptr(), stride, c, dst.as_mut_ptr().cast())
+    };
+}
+
+/// The other way: sixteen channels-last pixels of `c` floats (`src`) into `c` planes `stride`
+/// floats apart, `dst[ci·stride + px] = src[px·c + ci] (+ bias[ci])` ([`transposes`] must
+/// hold). [`super::kernels::unborder_into`]'s copy.
+pub(super) fn to_planes(
+    src: &[f32],
+    c: usize,
+    bias: Option<&[f32]>,
+    stride: usize,
+    dst: &mut [MaybeUninit<f32>],
+) {
+    assert!(
+        transposes(c),
+        "simd::to_planes: {c} channels, or no AVX-512 here"
+    );
+    assert!(
+        src.len() >= LANES * c && dst.len() >= (c - 1) * stride + LANES,
+        "simd::to_planes: {} and {} floats for 16 pixels of {c} planes {stride} apart",
+        src.len(),
+        dst.len()
+    );
+    assert!(
+        bias.is_none_or(|b| b.len() >= c),
+        "simd::to_planes: a bias per channel"
+    );
+    // SAFETY: as in `to_pixels`; `bias`, when given, holds `c` floats (asserted).
+    #[cfg(target_arch = "x86_64")]
+    unsafe {
+        x86::to_planes(src.as_ptr(), c, bias, stride, dst.as_mut_ptr().cast())
+    };
+}
+
 /// `v`'s floats as slots, for [`x86`]'s stores.
 fn slots(v: &mut [f32]) -> &mut [MaybeUninit<f32>] {
     // SAFETY: `MaybeUninit<f32>` has the layout of `f32`; only initialised values are written.
@@ -159,8 +219,9 @@ fn slots(v: &mut [f32]) -> &mut [MaybeUninit<f32>] {
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::{
-        _mm512_add_ps, _mm512_fmadd_ps, _mm512_loadu_ps, _mm512_set1_ps, _mm512_setzero_ps,
-        _mm512_storeu_ps,
+        __m512, _mm512_add_ps, _mm512_castpd_ps, _mm512_castps_pd, _mm512_fmadd_ps,
+        _mm512_loadu_ps, _mm512_set1_ps, _mm512_setzero_ps, _mm512_shuffle_f32x4, _mm512_storeu_ps,
+        _mm512_unpackhi_pd, _mm512_unpackhi_ps, _mm512_unpacklo_pd, _mm512_unpacklo_ps,
     };
 
     use super::{LANES, TILE, slots};
@@ -340,6 +401,96 @@ mod x86 {
                     let d = dst.add(j * n + b * LANES);
                     _mm512_storeu_ps(d, _mm512_add_ps(_mm512_loadu_ps(d), a));
                 }
+            }
+        }
+    }
+
+    /// `t[j]` lane `i` = `r[i]` lane `j`: the 16 × 16 transpose in three rounds of shuffles.
+    /// Interleaving pairs of rows by single floats, then by pairs of floats, leaves in 128-bit
+    /// lane `L` of `u[4g + k]` rows `4g..4g + 4` at column `4L + k`; two rounds of 128-bit lane
+    /// selection then gather each column's four lanes from `u[k]`, `u[4 + k]`, `u[8 + k]`
+    /// and `u[12 + k]`.
+    #[target_feature(enable = "avx512f")]
+    fn transpose16(r: [__m512; 16]) -> [__m512; 16] {
+        let mut t = [_mm512_setzero_ps(); 16];
+        for i in (0..16).step_by(2) {
+            t[i] = _mm512_unpacklo_ps(r[i], r[i + 1]);
+            t[i + 1] = _mm512_unpackhi_ps(r[i], r[i + 1]);
+        }
+        let mut u = [_mm512_setzero_ps(); 16];
+        for g in (0..16).step_by(4) {
+            let pd = |a: usize, b: usize, hi: bool| {
+                let (a, b) = (_mm512_castps_pd(t[a]), _mm512_castps_pd(t[b]));
+                _mm512_castpd_ps(if hi {
+                    _mm512_unpackhi_pd(a, b)
+                } else {
+                    _mm512_unpacklo_pd(a, b)
+                })
+            };
+            u[g] = pd(g, g + 2, false);
+            u[g + 1] = pd(g, g + 2, true);
+            u[g + 2] = pd(g + 1, g + 3, false);
+            u[g + 3] = pd(g + 1, g + 3, true);
+        }
+        // Lane selections: 0b10_00_10_00 takes lanes 0, 2 of each side, 0b11_01_11_01 lanes 1, 3.
+        let mut out = [_mm512_setzero_ps(); 16];
+        for k in 0..4 {
+            let even_a = _mm512_shuffle_f32x4::<0b10_00_10_00>(u[k], u[4 + k]);
+            let odd_a = _mm512_shuffle_f32x4::<0b11_01_11_01>(u[k], u[4 + k]);
+            let even_b = _mm512_shuffle_f32x4::<0b10_00_10_00>(u[8 + k], u[12 + k]);
+            let odd_b = _mm512_shuffle_f32x4::<0b11_01_11_01>(u[8 + k], u[12 + k]);
+            out[k] = _mm512_shuffle_f32x4::<0b10_00_10_00>(even_a, even_b);
+            out[8 + k] = _mm512_shuffle_f32x4::<0b11_01_11_01>(even_a, even_b);
+            out[4 + k] = _mm512_shuffle_f32x4::<0b10_00_10_00>(odd_a, odd_b);
+            out[12 + k] = _mm512_shuffle_f32x4::<0b11_01_11_01>(odd_a, odd_b);
+        }
+        out
+    }
+
+    /// [`super::to_pixels`], a group of 16 channels at a time.
+    ///
+    /// # Safety
+    /// AVX-512F; `src` holds `(c − 1)·stride + 16` floats and `dst` `16c`; `c` a multiple of 16.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn to_pixels(src: *const f32, stride: usize, c: usize, dst: *mut f32) {
+        for g in (0..c).step_by(LANES) {
+            let mut r = [_mm512_setzero_ps(); 16];
+            for (i, v) in r.iter_mut().enumerate() {
+                // SAFETY: channel `g + i < c`, 16 floats from its plane's start (caller).
+                *v = unsafe { _mm512_loadu_ps(src.add((g + i) * stride)) };
+            }
+            for (px, v) in transpose16(r).into_iter().enumerate() {
+                // SAFETY: pixel `px < 16`, channels `g..g + 16` of `c` (caller).
+                unsafe { _mm512_storeu_ps(dst.add(px * c + g), v) };
+            }
+        }
+    }
+
+    /// [`super::to_planes`], a group of 16 channels at a time.
+    ///
+    /// # Safety
+    /// AVX-512F; `src` holds `16c` floats, `dst` `(c − 1)·stride + 16`, `bias` (if any) `c`;
+    /// `c` a multiple of 16.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn to_planes(
+        src: *const f32,
+        c: usize,
+        bias: Option<&[f32]>,
+        stride: usize,
+        dst: *mut f32,
+    ) {
+        for g in (0..c).step_by(LANES) {
+            let mut r = [_mm512_setzero_ps(); 16];
+            for (px, v) in r.iter_mut().enumerate() {
+                // SAFETY: pixel `px < 16`, channels `g..g + 16` of `c` (caller).
+                *v = unsafe { _mm512_loadu_ps(src.add(px * c + g)) };
+            }
+            for (i, mut v) in transpose16(r).into_iter().enumerate() {
+                if let Some(b) = bias {
+                    v = _mm512_add_ps(v, _mm512_set1_ps(b[g + i]));
+                }
+                // SAFETY: channel `g + i < c`, 16 floats from its plane's start (caller).
+                unsafe { _mm512_storeu_ps(dst.add((g + i) * stride), v) };
             }
         }
     }
