@@ -457,17 +457,7 @@ fn forward(
                 })
                 .collect();
             let out = &mut ys[start * g.o * pix..][..len * g.o * pix];
-            wino::convolve(
-                &imgs,
-                [g.c, g.h, g.w],
-                u,
-                g.o,
-                par,
-                &mut scratch,
-                |j, o, at, v| {
-                    out[j * g.o * pix + at].write(v + bias(o));
-                },
-            );
+            wino::convolve(&imgs, [g.c, g.h, g.w], u, g.o, b, par, &mut scratch, out);
         }
     };
     let worker =
@@ -493,7 +483,7 @@ fn forward(
     // SAFETY: the chunks cover `y` and `per_image` writes every element of its image (the
     // 3 × 3 path through `unborder_into`, which writes every index of `o × h × w`, and here
     // `ho × wo = h × w`), as `winograd` does for each image of its groups (`wino::convolve`
-    // puts every index of each image's `o × h × w`); the chunks of `kept` match those of `y`
+    // writes every index of each image's `o × h × w`); the chunks of `kept` match those of `y`
     // image for image, and `border_into` writes every element of its slot.
     unsafe { (written(y), kept.map(|k| written(k))) }
 }
@@ -585,11 +575,10 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                             [g.o, g.h, g.w],
                             ud,
                             g.c,
+                            None,
                             par,
                             &mut scratch,
-                            |jj, _, at, v| {
-                                out[jj * g.image() + at].write(v);
-                            },
+                            out,
                         );
                         pending = 0;
                     }

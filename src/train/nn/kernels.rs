@@ -329,34 +329,53 @@ pub(super) fn unborder_into(
 ) {
     let (wp, plane) = (w + 2, h * w);
     assert!(
-        dst.len() >= n * plane && wide.len() >= (h * wp).saturating_sub(2) * n,
-        "unborder: {} and {} floats for {n} × {h} × {w}",
-        wide.len(),
+        dst.len() >= n * plane,
+        "unborder: {} floats for {n} × {h} × {w}",
+        dst.len()
+    );
+    for y in 0..h {
+        to_planes(&wide[y * wp * n..], [n, w], bias, plane, &mut dst[y * w..]);
+    }
+}
+
+/// `count` channels-last pixels of `n` floats (`src`) into `n` planes `stride` floats apart:
+/// `dst[o·stride + p] = src[p·n + o] (+ bias[o])`. [`PIXEL_BLOCK`] pixels at a time, so the
+/// block's floats stay in the L1 cache while each channel's run is put; with channels in
+/// sixteens on AVX-512 each whole block is transposed in registers ([`simd::to_planes`]).
+pub(super) fn to_planes(
+    src: &[f32],
+    [n, count]: [usize; 2],
+    bias: Option<&[f32]>,
+    stride: usize,
+    dst: &mut [MaybeUninit<f32>],
+) {
+    if n == 0 || count == 0 {
+        return;
+    }
+    assert!(
+        src.len() >= count * n && dst.len() >= (n - 1) * stride + count && count <= stride,
+        "to_planes: {} and {} floats for {count} pixels of {n} channels, planes {stride} apart",
+        src.len(),
         dst.len()
     );
     assert!(
         bias.is_none_or(|b| b.len() >= n),
-        "unborder: a bias per channel"
+        "to_planes: a bias per channel"
     );
-    // [`PIXEL_BLOCK`] pixels of one row at a time, as [`border_into`] copies the other way:
-    // the block's floats stay in the L1 cache while each channel's run is put; with channels
-    // in sixteens on AVX-512 each whole block is transposed in registers ([`simd::to_planes`]).
     let in_registers = simd::transposes(n);
-    for y in 0..h {
-        for x0 in (0..w).step_by(PIXEL_BLOCK) {
-            let xs = (w - x0).min(PIXEL_BLOCK);
-            let block = &wide[(y * wp + x0) * n..][..xs * n];
-            if in_registers && xs == PIXEL_BLOCK {
-                simd::to_planes(block, n, bias, plane, &mut dst[y * w + x0..]);
-                continue;
-            }
-            for o in 0..n {
-                let at = (o * h + y) * w + x0;
-                let run = dst[at..at + xs].iter_mut().zip(block.chunks_exact(n));
-                match bias {
-                    Some(b) => run.for_each(|(d, px)| _ = d.write(px[o] + b[o])),
-                    None => run.for_each(|(d, px)| _ = d.write(px[o])),
-                }
+    for x0 in (0..count).step_by(PIXEL_BLOCK) {
+        let xs = (count - x0).min(PIXEL_BLOCK);
+        let block = &src[x0 * n..][..xs * n];
+        if in_registers && xs == PIXEL_BLOCK {
+            simd::to_planes(block, n, bias, stride, &mut dst[x0..]);
+            continue;
+        }
+        for o in 0..n {
+            let at = o * stride + x0;
+            let run = dst[at..at + xs].iter_mut().zip(block.chunks_exact(n));
+            match bias {
+                Some(b) => run.for_each(|(d, px)| _ = d.write(px[o] + b[o])),
+                None => run.for_each(|(d, px)| _ = d.write(px[o])),
             }
         }
     }

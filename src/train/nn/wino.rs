@@ -18,9 +18,11 @@
 //!
 //! [`fits`]: fits
 
+use std::mem::MaybeUninit;
+
 use gemm::Parallelism;
 
-use super::kernels::{Mat, product_into};
+use super::kernels::{Mat, product_into, to_planes};
 
 /// The fewest input and output channels a layer needs to go through Winograd: below it the
 /// products over the channels are too short for the saved multiplications to pay for the
@@ -136,8 +138,8 @@ fn unpatch(n: usize, m: &[f32], top: &mut [f32], bottom: &mut [f32]) {
 
 /// The 3 × 3 same convolution of `pads` (images bordered as [`super::kernels::border`] lays them
 /// out: `(h + 2) × (w + 2)` pixels of `c` floats, channels last) with the kernels `u` of
-/// [`kernels`] (`n` outputs), no bias: `put(image, channel, index, value)` for every index
-/// `(channel · h + y) · w + x` of each image's `n × h × w` output. `h` and `w` must be even.
+/// [`kernels`] (`n` outputs), plus `bias[o]` on channel `o` if given, into `out`: image `j`'s
+/// `n × h × w` (NCHW) from `j · n·h·w`, every element written. `h` and `w` must be even.
 /// `par`: the products' threads (one, when the caller shares images out over the pool).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn convolve(
@@ -145,12 +147,17 @@ pub(super) fn convolve(
     [c, h, w]: [usize; 3],
     u: &[f32],
     n: usize,
+    bias: Option<&[f32]>,
     par: Parallelism,
     scratch: &mut Scratch,
-    mut put: impl FnMut(usize, usize, usize, f32),
+    out: &mut [MaybeUninit<f32>],
 ) {
     assert!(h % 2 == 0 && w % 2 == 0, "winograd: odd image {h} × {w}");
     assert_eq!(u.len(), 16 * c * n, "winograd: kernels of another shape");
+    assert!(
+        out.len() >= pads.len() * n * h * w,
+        "winograd: an output too short"
+    );
     let (th, tw, wp) = (h / 2, w / 2, w + 2);
     let per = th * tw;
     let t = pads.len() * per;
@@ -208,18 +215,16 @@ pub(super) fn convolve(
                 );
             }
         }
-        for o in 0..n {
-            for p in 0..h * w {
-                put(j, o, o * h * w + p, scratch.y[p * n + o]);
-            }
-        }
+        let image = n * h * w;
+        let y = &scratch.y[..h * w * n];
+        to_planes(y, [n, h * w], bias, h * w, &mut out[j * image..][..image]);
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::nn::kernels::{border, taps_major};
+    use crate::train::nn::kernels::{as_slots, border, taps_major};
 
     /// Uniform in `[-1, 1)` from a fixed linear congruential sequence.
     fn uniform(state: &mut u64) -> f32 {
@@ -246,12 +251,10 @@ mod tests {
             [c, h, w],
             &u,
             o,
+            None,
             Parallelism::None,
             &mut scratch,
-            |j, _, at, v| {
-                assert_eq!(j, 0);
-                got[at] = v;
-            },
+            as_slots(&mut got),
         );
         let mut worst = 0.0f64;
         for oo in 0..o {
