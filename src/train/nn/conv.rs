@@ -24,7 +24,8 @@
 //! by 180° and its channels swapped) are three products each, one per kernel row; the weight
 //! gradient of kernel row `ky` is the transpose of that row's left side times `dy`, read from
 //! the bordered copy the forward made (kept in the backward state while training). Where both
-//! channel counts are at least [`wino::MIN_CHANNELS`] and the image sizes even (a ResNet's
+//! channel counts are at least [`wino::MIN_CHANNELS`] (or [`wino::MIN_CHANNELS_DIRECT`] where the
+//! direct kernels below take the layer) and the image sizes even (a ResNet's
 //! deeper stages), the forward and the input gradient go through Winograd's F(2 × 2, 3 × 3)
 //! instead ([`wino`]: 2.25× fewer multiplications, a group of images per product). Images are
 //! shared out over the rayon pool (one product per image on one thread); a batch smaller than
@@ -745,6 +746,11 @@ mod tests {
         check(5, 32, 40, [6, 8], 3, 1, 1);
         check(2, 48, 32, [2, 2], 3, 1, 1);
         check(2, 32, 32, [5, 6], 3, 1, 1);
+        // ... and where the direct AVX-512 kernels keep 32 channels direct (`MIN_CHANNELS_DIRECT`):
+        // 64 each way, more out than in and the reverse.
+        check(3, 64, 64, [6, 8], 3, 1, 1);
+        check(2, 64, 96, [4, 4], 3, 1, 1);
+        check(2, 96, 64, [2, 6], 3, 1, 1);
         // Larger images: Winograd's groups hold one image each.
         check(3, 32, 32, [32, 34], 3, 1, 1);
         // Input exactly the kernel's size, no padding: one output pixel.

@@ -23,21 +23,30 @@ use std::mem::MaybeUninit;
 use gemm::Parallelism;
 
 use super::kernels::{Mat, product_into, to_planes};
+use super::simd;
 
-/// The fewest input and output channels a layer needs to go through Winograd: below it the
-/// products over the channels are too short for the saved multiplications to pay for the
-/// transforms (measured: `rig bench train --speed`).
+/// The fewest input and output channels a layer needs to go through Winograd when its direct
+/// products would run on `gemm`: below it the products over the channels are too short for the
+/// saved multiplications to pay for the transforms (measured: `rig bench train --speed`).
 pub(super) const MIN_CHANNELS: usize = 32;
 
+/// The same when the direct products run on the AVX-512 kernels of [`super::simd`] (outputs in
+/// sixteens), about twice `gemm`'s rate on these shapes: the 32-channel layers stay direct. On
+/// an AVX-512 Xeon, 2 threads, 64 × 48, width 16, batch 8, their taking Winograd made the
+/// ResNet-18 / -34 training step 2–3 % slower than this threshold (3 rounds, each faster here);
+/// from 128 channels instead sat between the two.
+pub(super) const MIN_CHANNELS_DIRECT: usize = 64;
+
 /// Whether a 3 × 3 same layer of `c → o` channels on `h × w` images takes this path: even
-/// sizes (whole 2 × 2 blocks) and [`MIN_CHANNELS`] each way.
+/// sizes (whole 2 × 2 blocks) and [`MIN_CHANNELS`] each way, or [`MIN_CHANNELS_DIRECT`] where
+/// the direct kernels cover `o` outputs.
 pub(super) fn fits(c: usize, o: usize, h: usize, w: usize) -> bool {
-    h.is_multiple_of(2)
-        && w.is_multiple_of(2)
-        && h > 0
-        && w > 0
-        && c >= MIN_CHANNELS
-        && o >= MIN_CHANNELS
+    let least = if simd::covers(o) {
+        MIN_CHANNELS_DIRECT
+    } else {
+        MIN_CHANNELS
+    };
+    h.is_multiple_of(2) && w.is_multiple_of(2) && h > 0 && w > 0 && c >= least && o >= least
 }
 
 /// Images transformed together, so each of the 16 products has about 512 rows (blocks).
