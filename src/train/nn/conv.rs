@@ -56,9 +56,9 @@ use rayon::prelude::*;
 
 use super::kernels::{
     Mat, as_slots, border, border_into, bordered_len, dense, flex, product, sum_of, taps_major,
-    three_rows, three_rows_grad, unborder_into, unwritten, written, zeroed,
+    three_rows, three_rows_grad, to_pixels, to_planes, unborder_into, unwritten, written, zeroed,
 };
-use super::wino;
+use super::{simd, wino};
 
 /// The convolution as a backend operation (NCHW, bias, square kernel `k` from the weight's
 /// shape, `stride` and zero padding `pad` on both axes).
@@ -268,6 +268,18 @@ impl Geom {
     fn three(&self) -> bool {
         self.k == 3 && self.s == 1 && self.p == 1
     }
+
+    /// The 3 × 3 case of stride 2 and padding 1 with outputs in sixteens on AVX-512: the
+    /// forward and the weight gradient on the direct kernels over the bordered image
+    /// ([`simd::stride2_rows`]), without im2col; the input gradient stays on the unrolled path.
+    fn stride2(&self) -> bool {
+        self.k == 3 && self.s == 2 && self.p == 1 && simd::covers(self.o)
+    }
+
+    /// Whether the forward borders the image (and keeps it for the weight gradient).
+    fn bordered(&self) -> bool {
+        self.three() || self.stride2()
+    }
 }
 
 /// Output positions `lo..hi` along one axis whose input position `o·s + kx − p` lies inside
@@ -371,9 +383,9 @@ fn split(n: usize) -> (usize, Parallelism) {
     }
 }
 
-/// The convolution's output; with `keep`, also every image as the 3 × 3 path [`border`]ed it
-/// (`n` × [`bordered_len`] floats), which the weight gradient reads again (`None` for the
-/// other paths).
+/// The convolution's output; with `keep`, also every image as the 3 × 3 and stride-2 paths
+/// [`border`]ed it (`n` × [`bordered_len`] floats), which the weight gradient reads again
+/// (`None` for the other paths).
 fn forward(
     g: &Geom,
     x: &[f32],
@@ -385,13 +397,13 @@ fn forward(
     let mut y = unwritten(g.n * g.o * pix);
     let (chunk, par) = split(g.n);
     let bias = |o: usize| b.map_or(0.0, |b| b[o]);
-    let wk = g.three().then(|| taps_major(w, [g.o, g.c, 3], false));
+    let wk = g.bordered().then(|| taps_major(w, [g.o, g.c, 3], false));
     let per_pad = bordered_len([g.c, g.h, g.w]);
-    let mut kept = (keep && g.three()).then(|| unwritten(g.n * per_pad));
+    let mut kept = (keep && g.bordered()).then(|| unwritten(g.n * per_pad));
     // The deep layers' kernels for Winograd, when the layer takes that path.
     let wino = wk
         .as_ref()
-        .filter(|_| wino::fits(g.c, g.o, g.h, g.w))
+        .filter(|_| g.three() && wino::fits(g.c, g.o, g.h, g.w))
         .map(|wk| wino::kernels(wk, g.c, g.o));
     // `col` is the unrolled image, or the bordered one (unless it goes to `slot`, kept) and the
     // product on the padded width.
@@ -410,6 +422,12 @@ fn forward(
                     col
                 }
             };
+            if g.stride2() {
+                wide.resize(pix * g.o, 0.0);
+                simd::stride2_rows(pad, [wp, g.c], [g.ho, g.wo], wk, g.o, wide);
+                to_planes(wide, [g.o, pix], b, pix, y_n);
+                return;
+            }
             wide.resize(g.h * wp * g.o, 0.0);
             three_rows(pad, [wp, g.c, g.h * wp], wk, g.o, wide, par);
             unborder_into(wide, [g.o, g.h, g.w], b, y_n);
@@ -483,7 +501,8 @@ fn forward(
     }
     // SAFETY: the chunks cover `y` and `per_image` writes every element of its image (the
     // 3 × 3 path through `unborder_into`, which writes every index of `o × h × w`, and here
-    // `ho × wo = h × w`), as `winograd` does for each image of its groups (`wino::convolve`
+    // `ho × wo = h × w`; the stride-2 path through `to_planes`, every index of `o × ho × wo`),
+    // as `winograd` does for each image of its groups (`wino::convolve`
     // writes every index of each image's `o × h × w`); the chunks of `kept` match those of `y`
     // image for image, and `border_into` writes every element of its slot.
     unsafe { (written(y), kept.map(|k| written(k))) }
@@ -591,7 +610,21 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                 }
                 continue;
             }
-            if want.dw {
+            if want.dw && g.stride2() {
+                // The bordered input as the forward kept it, and `dy` channels-last.
+                let per_pad = bordered_len([g.c, g.h, g.w]);
+                let pad: &[f32] = match kept {
+                    Some(k) => &k[i * per_pad..][..per_pad],
+                    None => {
+                        border(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], &mut col);
+                        &col
+                    }
+                };
+                wide.resize(pix * g.o, 0.0);
+                to_pixels(dy_n, [g.o, pix], pix, as_slots(&mut wide));
+                let dims = [g.ho, g.wo];
+                simd::stride2_rows_grad(pad, [g.w + 2, g.c], dims, &wide, g.o, &mut dw);
+            } else if want.dw {
                 let cols = unrolled(g, &x[i * g.image()..][..g.image()], &mut col);
                 product(
                     &mut dw,
@@ -645,7 +678,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
             *a += v;
         }
     }
-    if g.three() && want.dw {
+    if g.bordered() && want.dw {
         // `[9c, o]` in (ky, kx, ci) order back to the weight's `[o, c, 3, 3]`.
         let mut out = unwritten(dw.len());
         out.par_chunks_mut((g.c * 9).max(1))
@@ -753,6 +786,12 @@ mod tests {
         check(2, 96, 64, [2, 6], 3, 1, 1);
         // Larger images: Winograd's groups hold one image each.
         check(3, 32, 32, [32, 34], 3, 1, 1);
+        // Stride 2 with outputs in sixteens (the direct kernels on AVX-512): even and odd
+        // sizes, one input channel to many, and a width past one tile of 24 outputs.
+        check(3, 16, 32, [8, 12], 3, 2, 1);
+        check(2, 5, 16, [9, 7], 3, 2, 1);
+        check(2, 1, 48, [3, 3], 3, 2, 1);
+        check(2, 16, 64, [4, 58], 3, 2, 1);
         // Input exactly the kernel's size, no padding: one output pixel.
         check(2, 3, 2, [3, 3], 3, 1, 0);
     }

@@ -223,39 +223,58 @@ pub(super) fn border_into<'a>(
     }
     // The bottom row after its left pixel, and the spare pixels.
     dst[((h + 1) * wp + 1) * c..].fill(zero);
-    // The interior, a transpose from channel planes to pixels, [`PIXEL_BLOCK`] pixels of one
-    // row at a time: the block's floats stay in the L1 cache while the `c` planes are read into
-    // them. Writing a whole plane at a time instead, `c` floats apart, touched a new cache line
-    // with every write and took 8 % of a ResNet-18 training step.
+    // The interior, row by row from the channel planes ([`to_pixels`]).
     let plane = h * w;
     assert!(
         src.len() >= c * plane,
         "border: {} floats for {c} × {h} × {w}",
         src.len()
     );
-    // With channels in sixteens on AVX-512, each whole block is transposed in registers
-    // ([`simd::to_pixels`]).
-    let in_registers = simd::transposes(c);
     for y in 0..h {
         let row = &mut dst[((y + 1) * wp + 1) * c..][..w * c];
-        for x0 in (0..w).step_by(PIXEL_BLOCK) {
-            let xs = (w - x0).min(PIXEL_BLOCK);
-            let block = &mut row[x0 * c..][..xs * c];
-            if in_registers && xs == PIXEL_BLOCK {
-                simd::to_pixels(&src[y * w + x0..], plane, c, block);
-                continue;
-            }
-            for ci in 0..c {
-                let from = &src[ci * plane + y * w + x0..][..xs];
-                for (px, &v) in block.chunks_exact_mut(c).zip(from) {
-                    px[ci].write(v);
-                }
-            }
-        }
+        to_pixels(&src[y * w..], [c, w], plane, row);
     }
     // SAFETY: the fills cover the border pixels and the spare ones, the copy every interior
     // pixel's `c` floats: together every element of `dst`.
     unsafe { &mut *(dst as *mut [MaybeUninit<f32>] as *mut [f32]) }
+}
+
+/// `count` pixels of `c` planes `stride` floats apart (`src`) into channels-last order:
+/// `dst[p·c + ci] = src[ci·stride + p]`, the inverse of [`to_planes`]. [`PIXEL_BLOCK`]
+/// pixels at a time, so the block's floats stay in the L1 cache while the `c` planes are read
+/// into them (writing a whole plane at a time instead, `c` floats apart, touched a new cache
+/// line with every write and took 8 % of a ResNet-18 training step); with channels in sixteens
+/// on AVX-512 each whole block is transposed in registers ([`simd::to_pixels`]).
+pub(super) fn to_pixels(
+    src: &[f32],
+    [c, count]: [usize; 2],
+    stride: usize,
+    dst: &mut [MaybeUninit<f32>],
+) {
+    if c == 0 || count == 0 {
+        return;
+    }
+    assert!(
+        src.len() >= (c - 1) * stride + count && dst.len() >= count * c && count <= stride,
+        "to_pixels: {} and {} floats for {count} pixels of {c} planes {stride} apart",
+        src.len(),
+        dst.len()
+    );
+    let in_registers = simd::transposes(c);
+    for x0 in (0..count).step_by(PIXEL_BLOCK) {
+        let xs = (count - x0).min(PIXEL_BLOCK);
+        let block = &mut dst[x0 * c..][..xs * c];
+        if in_registers && xs == PIXEL_BLOCK {
+            simd::to_pixels(&src[x0..], stride, c, block);
+            continue;
+        }
+        for ci in 0..c {
+            let from = &src[ci * stride + x0..][..xs];
+            for (px, &v) in block.chunks_exact_mut(c).zip(from) {
+                px[ci].write(v);
+            }
+        }
+    }
 }
 
 /// `dst = Σ_ky L_ky · W_ky`, `dst` row-major `[m, n]`: a 3 × 3, stride-1 convolution of the

@@ -89,7 +89,7 @@ pub(super) fn three_rows(
         // `9c × n` (asserted) and `part` holds those rows of `n` floats.
         #[cfg(target_arch = "x86_64")]
         unsafe {
-            x86::forward_rows(pad, [wp, c], first, w, n, part)
+            x86::forward_rows(pad, [wp, c], [first * c, c], w, n, part)
         };
         #[cfg(not(target_arch = "x86_64"))]
         unreachable!("{first} {}", part.len());
@@ -135,7 +135,7 @@ pub(super) fn three_rows_grad(
         // that kernel row's `3c × n` of `dw` (asserted).
         #[cfg(target_arch = "x86_64")]
         unsafe {
-            x86::grad_rows(&pad[ky * wp * c..], [c, m], dy, n, part)
+            x86::grad_rows(&pad[ky * wp * c..], [c, m, c], dy, n, part)
         };
         #[cfg(not(target_arch = "x86_64"))]
         unreachable!("{ky} {}", part.len());
@@ -148,6 +148,104 @@ pub(super) fn three_rows_grad(
             .into_par_iter()
             .for_each(|(ky, part)| run(ky, part)),
     }
+}
+
+/// The 3 × 3 convolution of stride 2 of the [`super::kernels::border`]ed channels-last image
+/// `pad` (`wp` pixels a row, `c` floats a pixel; padding 1), `[ho, wo]` output pixels, into
+/// `dst` channels-last `[ho·wo, n]`: output `(oy, ox)` of kernel row `ky` reads the `3c` floats
+/// from padded pixel `(2oy + ky, 2ox)`, so each output row is the forward product on pixels two
+/// apart. `w` is `[9c, n]` as for [`three_rows`]; `n` a multiple of 16 ([`covers`]).
+pub(super) fn stride2_rows(
+    pad: &[f32],
+    [wp, c]: [usize; 2],
+    [ho, wo]: [usize; 2],
+    w: &[f32],
+    n: usize,
+    dst: &mut [f32],
+) {
+    assert!(
+        covers(n),
+        "simd::stride2_rows: {n} channels, or no AVX-512 here"
+    );
+    assert!(
+        ho == 0 || wo == 0 || stride2_reach([wp, c], [ho, wo]) <= pad.len(),
+        "simd::stride2_rows: the image is too short"
+    );
+    assert_eq!(
+        w.len(),
+        9 * c * n,
+        "simd::stride2_rows: weights of another shape"
+    );
+    assert!(
+        dst.len() >= ho * wo * n,
+        "simd::stride2_rows: the output is too short"
+    );
+    if wo == 0 {
+        return;
+    }
+    for (oy, part) in dst[..ho * wo * n].chunks_mut(wo * n).enumerate() {
+        // SAFETY: AVX-512F is present (`covers`); the `wo` outputs of row `oy` read from
+        // padded row `2oy`, `(wo − 1)·2c + 2wp·c + 3c` floats, within `stride2_reach`
+        // (asserted); `w` is `9c × n` and `part` one output row of `n` floats a pixel.
+        #[cfg(target_arch = "x86_64")]
+        unsafe {
+            x86::forward_rows(pad, [wp, c], [2 * oy * wp * c, 2 * c], w, n, part)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        unreachable!("{oy} {}", part.len());
+    }
+}
+
+/// `dw += ` the weight gradient of [`stride2_rows`]' product: `dw` `[9c, n]` as its weights,
+/// `dy` channels-last `[ho·wo, n]`.
+pub(super) fn stride2_rows_grad(
+    pad: &[f32],
+    [wp, c]: [usize; 2],
+    [ho, wo]: [usize; 2],
+    dy: &[f32],
+    n: usize,
+    dw: &mut [f32],
+) {
+    assert!(
+        covers(n),
+        "simd::stride2_rows_grad: {n} channels, or no AVX-512 here"
+    );
+    assert!(
+        ho == 0 || wo == 0 || stride2_reach([wp, c], [ho, wo]) <= pad.len(),
+        "simd::stride2_rows_grad: the image is too short"
+    );
+    assert!(
+        dy.len() >= ho * wo * n,
+        "simd::stride2_rows_grad: dy is too short"
+    );
+    assert_eq!(
+        dw.len(),
+        9 * c * n,
+        "simd::stride2_rows_grad: weights of another shape"
+    );
+    if wo == 0 {
+        return;
+    }
+    for (ky, part) in dw.chunks_mut(3 * c * n).enumerate() {
+        for oy in 0..ho {
+            // SAFETY: AVX-512F is present (`covers`); row `oy` of kernel row `ky` reads
+            // `(wo − 1)·2c + 3c` floats from padded row `2oy + ky`, within `stride2_reach`
+            // (asserted); `dy` holds that output row's `wo × n` floats, `part` is kernel row
+            // `ky`'s `3c × n` of `dw`.
+            #[cfg(target_arch = "x86_64")]
+            unsafe {
+                let rows = &pad[(2 * oy + ky) * wp * c..];
+                x86::grad_rows(rows, [c, wo, 2 * c], &dy[oy * wo * n..], n, part)
+            };
+            #[cfg(not(target_arch = "x86_64"))]
+            unreachable!("{ky} {oy} {}", part.len());
+        }
+    }
+}
+
+/// Floats of `pad` that the stride-2 products of `[ho, wo]` outputs (both above zero) read.
+fn stride2_reach([wp, c]: [usize; 2], [ho, wo]: [usize; 2]) -> usize {
+    2 * (ho - 1) * wp * c + (wo - 1) * 2 * c + 2 * wp * c + 3 * c
 }
 
 /// Whether [`to_pixels`] and [`to_planes`] take the 16 × 16 register transpose for `c`
@@ -240,11 +338,16 @@ mod x86 {
                 while at < len {
                     at += match (blocks, len - at) {
                         (4, l) if l >= TILE / 4 => $tile!(6, 4, col, at),
+                        (4, l) if l >= 4 => $tile!(4, 4, col, at),
+                        (4, l) if l >= 2 => $tile!(2, 4, col, at),
                         (4, _) => $tile!(1, 4, col, at),
                         (2 | 3, l) if l >= TILE / 2 => $tile!(12, 2, col, at),
+                        (2 | 3, l) if l >= 8 => $tile!(8, 2, col, at),
+                        (2 | 3, l) if l >= 4 => $tile!(4, 2, col, at),
                         (2 | 3, _) => $tile!(1, 2, col, at),
                         (_, l) if l >= TILE => $tile!(24, 1, col, at),
                         (_, l) if l >= 8 => $tile!(8, 1, col, at),
+                        (_, l) if l >= 4 => $tile!(4, 1, col, at),
                         _ => $tile!(1, 1, col, at),
                     };
                 }
@@ -257,17 +360,18 @@ mod x86 {
         }};
     }
 
-    /// Output rows `first..` of the forward product into `part` (whole rows of `n` floats), in
-    /// the tiles of `walk_tiles`.
+    /// Output rows of the forward product into `part` (whole rows of `n` floats), in the tiles
+    /// of `walk_tiles`: row `i` of `part` reads `pad` from float `origin + i·step` (`step = c`
+    /// for stride 1, `2c` for stride 2).
     ///
     /// # Safety
-    /// AVX-512F must be present; `pad` must hold [`super::reach`] of rows up to the last of
-    /// `part`, and `w` `9c × n` floats.
+    /// AVX-512F must be present; `pad` must hold the `(rows − 1)·step + 2wp·c + 3c` floats
+    /// from `origin` that the rows of `part` read, and `w` `9c × n` floats.
     #[target_feature(enable = "avx512f")]
     pub(super) unsafe fn forward_rows(
         pad: &[f32],
         [wp, c]: [usize; 2],
-        first: usize,
+        [origin, step]: [usize; 2],
         w: &[f32],
         n: usize,
         part: &mut [f32],
@@ -282,9 +386,9 @@ mod x86 {
                 // hands them out), and what it reads of `pad` and `w` is within what the
                 // caller guarantees.
                 unsafe {
-                    let src = pad.as_ptr().add((first + $row) * c);
+                    let src = pad.as_ptr().add(origin + $row * step);
                     let (wc, d) = (w.as_ptr().add($col), dst.add($row * n + $col));
-                    forward_tile::<$p, $nb>(src, [wp, c], wc, n, d);
+                    forward_tile::<$p, $nb>(src, [wp, c, step], wc, n, d);
                 }
                 $p
             }};
@@ -292,15 +396,15 @@ mod x86 {
         walk_tiles!(n, rows, tile);
     }
 
-    /// `P` output rows × `16·NB` channels: `Σ_ky Σ_t pad[(ky·wp + i)·c + t] · w[ky·3c + t]`.
+    /// `P` output rows × `16·NB` channels: `Σ_ky Σ_t src[ky·wp·c + i·step + t] · w[ky·3c + t]`.
     ///
     /// # Safety
-    /// AVX-512F; `src` holds `(P − 1 + 2wp)·c + 3c` floats, `w` `9c` rows of `n` floats (from
-    /// the block's column), `dst` `P` rows of `n` floats (from that column).
+    /// AVX-512F; `src` holds `(P − 1)·step + 2wp·c + 3c` floats, `w` `9c` rows of `n` floats
+    /// (from the block's column), `dst` `P` rows of `n` floats (from that column).
     #[target_feature(enable = "avx512f")]
     unsafe fn forward_tile<const P: usize, const NB: usize>(
         src: *const f32,
-        [wp, c]: [usize; 2],
+        [wp, c, step]: [usize; 3],
         w: *const f32,
         n: usize,
         dst: *mut f32,
@@ -318,7 +422,7 @@ mod x86 {
                         *v = _mm512_loadu_ps(wr.add(t * n + b * LANES));
                     }
                     for (i, acc) in acc.iter_mut().enumerate() {
-                        let x = _mm512_set1_ps(*base.add(i * c + t));
+                        let x = _mm512_set1_ps(*base.add(i * step + t));
                         for (a, &v) in acc.iter_mut().zip(&wv) {
                             *a = _mm512_fmadd_ps(x, v, *a);
                         }
@@ -334,15 +438,15 @@ mod x86 {
         }
     }
 
-    /// One kernel row's weight gradient: `part[t, :] += Σ_p rows[p·c + t] · dy[p, :]` for the
-    /// `3c` taps `t`, in the tiles of `walk_tiles`.
+    /// One kernel row's weight gradient: `part[t, :] += Σ_p rows[p·step + t] · dy[p, :]` for
+    /// the `3c` taps `t`, in the tiles of `walk_tiles` (`step = c` for stride 1, `2c` for 2).
     ///
     /// # Safety
-    /// AVX-512F; `rows` holds `(m − 1)·c + 3c` floats, `dy` `m × n`, `part` `3c × n`.
+    /// AVX-512F; `rows` holds `(m − 1)·step + 3c` floats, `dy` `m × n`, `part` `3c × n`.
     #[target_feature(enable = "avx512f")]
     pub(super) unsafe fn grad_rows(
         rows: &[f32],
-        [c, m]: [usize; 2],
+        [c, m, step]: [usize; 3],
         dy: &[f32],
         n: usize,
         part: &mut [f32],
@@ -356,7 +460,7 @@ mod x86 {
                 // guarantees.
                 unsafe {
                     let (src, dyc) = (rows.as_ptr().add($at), dy.as_ptr().add($col));
-                    grad_tile::<$t, $nb>(src, [c, m], dyc, n, dst.add($at * n + $col));
+                    grad_tile::<$t, $nb>(src, [m, step], dyc, n, dst.add($at * n + $col));
                 }
                 $t
             }};
@@ -367,12 +471,12 @@ mod x86 {
     /// `T` taps × `16·NB` channels of one kernel row's weight gradient, added into `dst`.
     ///
     /// # Safety
-    /// AVX-512F; `src` holds `(m − 1)·c + T` floats, `dy` `m` rows of `n` (from the block's
+    /// AVX-512F; `src` holds `(m − 1)·step + T` floats, `dy` `m` rows of `n` (from the block's
     /// column), `dst` `T` rows of `n` (from that column).
     #[target_feature(enable = "avx512f")]
     unsafe fn grad_tile<const T: usize, const NB: usize>(
         src: *const f32,
-        [c, m]: [usize; 2],
+        [m, step]: [usize; 2],
         dy: *const f32,
         n: usize,
         dst: *mut f32,
@@ -385,7 +489,7 @@ mod x86 {
                 for (b, v) in dv.iter_mut().enumerate() {
                     *v = _mm512_loadu_ps(dy.add(p * n + b * LANES));
                 }
-                let px = src.add(p * c);
+                let px = src.add(p * step);
                 for (j, acc) in acc.iter_mut().enumerate() {
                     let x = _mm512_set1_ps(*px.add(j));
                     for (a, &v) in acc.iter_mut().zip(&dv) {
@@ -513,12 +617,13 @@ mod tests {
 
     /// The shapes: channel counts of one to five column blocks (the 64-wide block, the 32-wide
     /// one and the single), input channels from 1 to 20, output rows below, at and across the
-    /// tile heights; each run single-threaded and shared out.
+    /// tile heights (every tile of `walk_tiles` among them); each run single-threaded and shared
+    /// out.
     fn shapes() -> Vec<[usize; 4]> {
         let mut out = Vec::new();
         for n in [16, 32, 48, 64, 80, 128] {
             for c in [1, 3, 16, 20] {
-                for (wp, m) in [(3, 1), (5, 7), (10, 25), (11, 203)] {
+                for (wp, m) in [(3, 1), (5, 7), (4, 8), (6, 14), (10, 25), (11, 203)] {
                     out.push([n, c, wp, m]);
                 }
             }
