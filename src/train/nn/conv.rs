@@ -31,7 +31,11 @@
 //! shared out over the rayon pool (one product per image on one thread); a batch smaller than
 //! the pool runs its products multi-threaded instead. Transposes are strides handed to `gemm`.
 //! The 3 × 3 path's products whose output channels come in sixteens run instead on the direct
-//! AVX-512 kernels of [`super::simd`] where the CPU has them.
+//! AVX-512 kernels of [`super::simd`] where the CPU has them. With those kernels the 3 × 3
+//! layers of stride 2 and padding 1 skip im2col too: their forward and weight gradient are the
+//! same products on pixels two apart of the bordered image (kept for the weight gradient as
+//! for stride 1; one image per thread, whatever the batch), and their input gradient stays on
+//! the unrolled path.
 //!
 //! [`conv2d`] takes this path for f32 tensors on the flex device, with or without autodiff, for
 //! any convolution with a bias, square kernel and stride, symmetric zero padding, no dilation
@@ -502,9 +506,9 @@ fn forward(
     // SAFETY: the chunks cover `y` and `per_image` writes every element of its image (the
     // 3 × 3 path through `unborder_into`, which writes every index of `o × h × w`, and here
     // `ho × wo = h × w`; the stride-2 path through `to_planes`, every index of `o × ho × wo`),
-    // as `winograd` does for each image of its groups (`wino::convolve`
-    // writes every index of each image's `o × h × w`); the chunks of `kept` match those of `y`
-    // image for image, and `border_into` writes every element of its slot.
+    // as `winograd` does for each image of its groups (`wino::convolve` writes every index of
+    // each image's `o × h × w`); the chunks of `kept` match those of `y` image for image, and
+    // `border_into` writes every element of its slot.
     unsafe { (written(y), kept.map(|k| written(k))) }
 }
 
