@@ -377,6 +377,26 @@ fn unrolled<'a>(g: &Geom, x_n: &'a [f32], col: &'a mut Vec<f32>) -> &'a [f32] {
     col
 }
 
+/// Image `i` of `x` bordered, for the weight gradient of the 3 × 3 and stride-2 paths: as the
+/// forward kept it (`kept`, `n` × [`bordered_len`] floats) or, without it, bordered again into
+/// `col`.
+fn bordered_input<'a>(
+    g: &Geom,
+    x: &[f32],
+    kept: Option<&'a [f32]>,
+    i: usize,
+    col: &'a mut Vec<f32>,
+) -> &'a [f32] {
+    let per_pad = bordered_len([g.c, g.h, g.w]);
+    match kept {
+        Some(k) => &k[i * per_pad..][..per_pad],
+        None => {
+            border(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], col);
+            col
+        }
+    }
+}
+
 /// Work shared out by image when the batch fills the pool, else each product multi-threaded.
 fn split(n: usize) -> (usize, Parallelism) {
     let threads = rayon::current_num_threads().max(1);
@@ -577,14 +597,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                     }
                 };
                 if want.dw {
-                    let per_pad = bordered_len([g.c, g.h, g.w]);
-                    let pad: &[f32] = match kept {
-                        Some(k) => &k[i * per_pad..][..per_pad],
-                        None => {
-                            border(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], &mut col);
-                            &col
-                        }
-                    };
+                    let pad = bordered_input(g, x, kept, i, &mut col);
                     let dy_wide = &dyb[(wp + 1) * g.o..][..m * g.o];
                     three_rows_grad(pad, [wp, g.c, m], dy_wide, g.o, &mut dw, par);
                 }
@@ -615,15 +628,8 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                 continue;
             }
             if want.dw && g.stride2() {
-                // The bordered input as the forward kept it, and `dy` channels-last.
-                let per_pad = bordered_len([g.c, g.h, g.w]);
-                let pad: &[f32] = match kept {
-                    Some(k) => &k[i * per_pad..][..per_pad],
-                    None => {
-                        border(&x[i * g.image()..][..g.image()], [g.c, g.h, g.w], &mut col);
-                        &col
-                    }
-                };
+                // The bordered input, and `dy` channels-last.
+                let pad = bordered_input(g, x, kept, i, &mut col);
                 wide.resize(pix * g.o, 0.0);
                 to_pixels(dy_n, [g.o, pix], pix, as_slots(&mut wide));
                 let dims = [g.ho, g.wo];

@@ -476,11 +476,12 @@ mod tests {
         }
     }
 
-    /// [`unborder_into`] writes every valid column of a padded-width channels-last product once,
-    /// at its NCHW index with its channel's bias, and none of the two discarded columns a row;
-    /// channel counts on and off the register transpose, widths across and off its blocks.
+    /// [`unborder_into`] writes every valid column of a padded-width channels-last product at
+    /// its NCHW index with its channel's bias (into a NaN-filled buffer, every index checked),
+    /// and none of the two discarded columns a row; channel counts on and off the register
+    /// transpose, widths across and off its blocks.
     #[test]
-    fn unborder_puts_each_valid_pixel_once_at_its_planar_index() {
+    fn unborder_writes_each_valid_pixel_at_its_planar_index() {
         for [n, h, w] in [
             [1, 1, 1],
             [3, 5, 37],
