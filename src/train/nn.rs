@@ -25,6 +25,7 @@ use serde::{Deserialize, Serialize};
 mod conv;
 mod fast;
 mod kernels;
+mod lanes;
 mod norm;
 mod simd;
 mod wino;

@@ -20,13 +20,17 @@
 //!   terms a lane, carried into f64), then `dx` (and `dr` when the residual wants it), `dz`
 //!   computed where it is read rather than written out first.
 //!
+//! Both run a channel a task, and each reads a channel's planes twice: the statistics (or the
+//! sums) in image order, then the output (or `dx`) in reverse image order, so that the planes
+//! read last are still in the core's cache when the second pass starts. The loops themselves
+//! are [`super::lanes`]'s, compiled for the widest vector unit the CPU has.
+//!
 //! The mean and biased variance are returned too, untracked, for the running statistics, which
 //! [`batch_norm`] updates exactly as `BatchNorm::forward` does in training. Outside training
 //! (no autodiff, or the layer frozen) and off the flex device, burn's `BatchNorm::forward`, its
 //! addition and its ReLU run.
 
 use std::borrow::Cow;
-use std::mem::MaybeUninit;
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -43,7 +47,11 @@ use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
 use super::conv::on_cpu_kernels;
-use super::kernels::{dense, flex, map2, sum_of, unwritten, written};
+use super::kernels::{dense, flex, map2, unwritten, written};
+use super::lanes::{
+    PlaneGrad, PlaneMap, Slot, activation_grad, grad_plane, grad_sums, norm_plane, plane_sq,
+    plane_sum,
+};
 
 /// A training batch norm's output and the batch statistics it used.
 #[derive(ExtensionType)]
@@ -117,17 +125,11 @@ fn flex_norm(
         );
     }
     let r = residual.as_ref().map(dense);
-    let (mean, var) = stats(&g, &xs);
-    let y = normalise(
+    let (y, mean, var) = normalise(
         &g,
         &xs,
-        Affine {
-            gamma: &dense(&gamma),
-            beta: &dense(&beta),
-            mean: &mean,
-            var: &var,
-            eps: epsilon,
-        },
+        [&dense(&gamma), &dense(&beta)],
+        epsilon,
         r.as_deref(),
         relu,
     );
@@ -168,33 +170,27 @@ impl Planes {
     fn plane<'a>(&self, v: &'a [f32], n: usize, c: usize) -> &'a [f32] {
         &v[(n * self.c + c) * self.len..][..self.len]
     }
+
+    /// The planes of `v` (laid out as the tensor's) grouped by channel: item `c` holds
+    /// channel `c`'s plane of every image, in image order.
+    fn by_channel<'a, T>(&self, v: &'a mut [T]) -> Vec<Vec<&'a mut [T]>> {
+        let mut out: Vec<Vec<&mut [T]>> = (0..self.c).map(|_| Vec::with_capacity(self.n)).collect();
+        if self.len > 0 {
+            for (i, p) in v.chunks_mut(self.len).enumerate() {
+                out[i % self.c].push(p);
+            }
+        }
+        out
+    }
 }
 
-/// Per channel: mean and biased variance, two passes with f64 sums.
-fn stats(g: &Planes, x: &[f32]) -> (Vec<f32>, Vec<f32>) {
-    let per: Vec<(f32, f32)> = (0..g.c)
-        .into_par_iter()
-        .map(|c| {
-            let planes = || (0..g.n).map(move |n| g.plane(x, n, c));
-            let sum: f64 = planes().map(|p| sum_of(p, f64::from)).sum();
-            let mean = sum / g.count();
-            let sq: f64 = planes()
-                .map(|p| sum_of(p, |v| (v as f64 - mean).powi(2)))
-                .sum();
-            (mean as f32, (sq / g.count()) as f32)
-        })
-        .collect();
-    per.into_iter().unzip()
-}
-
-/// The per-channel affine map of the normalisation.
-#[derive(Clone, Copy)]
-struct Affine<'a> {
-    gamma: &'a [f32],
-    beta: &'a [f32],
-    mean: &'a [f32],
-    var: &'a [f32],
-    eps: f64,
+/// One channel's mean and biased variance, two passes with f64 sums.
+fn channel_stats(g: &Planes, x: &[f32], c: usize) -> (f32, f32) {
+    let planes = || (0..g.n).map(move |n| g.plane(x, n, c));
+    let sum: f64 = planes().map(plane_sum).sum();
+    let mean = sum / g.count();
+    let sq: f64 = planes().map(|p| plane_sq(p, mean)).sum();
+    (mean as f32, (sq / g.count()) as f32)
 }
 
 /// `1 / √(σ² + ε)`.
@@ -202,109 +198,45 @@ fn inv_std(var: f32, eps: f64) -> f32 {
     1.0 / ((var as f64 + eps).sqrt() as f32)
 }
 
-/// The ReLU as burn's flex backend computes it: NaN goes through.
-#[inline(always)]
-fn activation(z: f32, relu: bool) -> f32 {
-    if relu && z <= 0.0 { 0.0 } else { z }
-}
-
+/// The normalised output and the batch's per-channel mean and biased variance.
+///
+/// Channel by channel (a channel a task): the statistics' two passes, then the output's pass
+/// over the same planes in reverse order, so that the planes the statistics read last are
+/// still in the core's cache when the output reads them; a ResNet's activation (several MB)
+/// is then read from memory once rather than three times.
 fn normalise(
     g: &Planes,
     x: &[f32],
-    a: Affine<'_>,
+    [gamma, beta]: [&[f32]; 2],
+    eps: f64,
     residual: Option<&[f32]>,
     relu: bool,
-) -> Vec<f32> {
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let mut y = unwritten(x.len());
-    if g.len == 0 {
-        // SAFETY: empty.
-        return unsafe { written(y) };
-    }
-    y.par_chunks_mut(g.len)
-        .zip(x.par_chunks(g.len))
+    let per: Vec<(f32, f32)> = g
+        .by_channel(&mut y)
+        .into_par_iter()
         .enumerate()
-        .for_each(|(i, (yp, xp))| {
-            let c = i % g.c;
+        .map(|(c, ys)| {
+            let (mean, var) = channel_stats(g, x, c);
             // `(x − μ)` first: exact for values near μ, where `x·s + (β − μ·s)` would cancel.
-            let (mu, scale, b) = (a.mean[c], a.gamma[c] * inv_std(a.var[c], a.eps), a.beta[c]);
-            match residual {
-                Some(r) => {
-                    let rp = &r[i * g.len..][..g.len];
-                    for ((o, &v), &r) in yp.iter_mut().zip(xp).zip(rp) {
-                        o.write(activation((v - mu) * scale + b + r, relu));
-                    }
-                }
-                None => {
-                    for (o, &v) in yp.iter_mut().zip(xp) {
-                        o.write(activation((v - mu) * scale + b, relu));
-                    }
-                }
+            let map = PlaneMap {
+                mu: mean,
+                scale: gamma[c] * inv_std(var, eps),
+                shift: beta[c],
+            };
+            for (n, yp) in ys.into_iter().enumerate().rev() {
+                let rp = residual.map(|r| g.plane(r, n, c));
+                norm_plane(yp, g.plane(x, n, c), rp, map, relu);
             }
-        });
-    // SAFETY: the planes cover `y`, each written in full.
-    unsafe { written(y) }
+            (mean, var)
+        })
+        .collect();
+    // SAFETY: the channels' planes cover `y`, each written in full.
+    let y = unsafe { written(y) };
+    let (mean, var) = per.into_iter().unzip();
+    (y, mean, var)
 }
-
-/// The ReLU's gradient as [`activation`] passes it: `d` where the output `y` was positive (or
-/// NaN), else 0.
-#[inline(always)]
-fn activation_grad(d: f32, y: f32, relu: bool) -> f32 {
-    if relu && y <= 0.0 { 0.0 } else { d }
-}
-
-/// Values [`grad_sums`] adds in f32 before it carries their sums into f64.
-const SUM_BLOCK: usize = 256;
-
-/// Per channel `(Σ dz, Σ dz·x̂)` over one plane, `dz` from `dy` through the ReLU's gradient
-/// (with `RELU`, `y` the output; else `y` is not read). Sixteen f32 partial sums of each a
-/// block of [`SUM_BLOCK`] values (the loop vectorises, and each f32 sum adds at most 16
-/// terms), carried into f64 after each block: sums in f64 throughout cost a ResNet-18 step
-/// several per cent.
-fn grad_sums<const RELU: bool>(
-    dy: &[f32],
-    y: &[f32],
-    x: &[f32],
-    mean: f32,
-    inv: f32,
-) -> (f64, f64) {
-    const LANES: usize = 16;
-    let (mut tb, mut tg) = (0.0f64, 0.0f64);
-    let blocks = dy
-        .chunks(SUM_BLOCK)
-        .zip(y.chunks(SUM_BLOCK))
-        .zip(x.chunks(SUM_BLOCK));
-    for ((db, yb), xb) in blocks {
-        let (mut sb, mut sg) = ([0.0f32; LANES], [0.0f32; LANES]);
-        let (mut dc, mut yc, mut xc) = (
-            db.chunks_exact(LANES),
-            yb.chunks_exact(LANES),
-            xb.chunks_exact(LANES),
-        );
-        for ((d, yv), v) in (&mut dc).zip(&mut yc).zip(&mut xc) {
-            for j in 0..LANES {
-                let dz = activation_grad(d[j], yv[j], RELU);
-                sb[j] += dz;
-                sg[j] += dz * ((v[j] - mean) * inv);
-            }
-        }
-        let rest = dc
-            .remainder()
-            .iter()
-            .zip(yc.remainder())
-            .zip(xc.remainder());
-        for (j, ((&d, &yv), &v)) in rest.enumerate() {
-            let dz = activation_grad(d, yv, RELU);
-            sb[j] += dz;
-            sg[j] += dz * ((v - mean) * inv);
-        }
-        tb += sb.iter().map(|&v| f64::from(v)).sum::<f64>();
-        tg += sg.iter().map(|&v| f64::from(v)).sum::<f64>();
-    }
-    (tb, tg)
-}
-
-/// A float of an output buffer, written once.
-type Slot = MaybeUninit<f32>;
 
 /// What the backward step keeps: the input, the output if a ReLU was applied (its mask), γ,
 /// the batch statistics and ε.
@@ -344,79 +276,61 @@ impl<const N: usize> Backward<Flex, N> for NormBackward<N> {
         let (x, gamma) = (dense(&s.x), dense(&s.gamma));
         let (mean, var) = (dense(&s.mean), dense(&s.var));
         let inv: Vec<f32> = var.iter().map(|&v| inv_std(v, s.eps)).collect();
-        let sums: Vec<(f64, f64)> = (0..g.c)
-            .into_par_iter()
-            .map(|c| {
-                (0..g.n)
-                    .map(|n| {
-                        let [d, y, v] = [&dy[..], y_or_dy, &x[..]].map(|t| g.plane(t, n, c));
-                        if relu {
-                            grad_sums::<true>(d, y, v, mean[c], inv[c])
-                        } else {
-                            grad_sums::<false>(d, y, v, mean[c], inv[c])
-                        }
-                    })
-                    .fold((0.0, 0.0), |t, p| (t.0 + p.0, t.1 + p.1))
-            })
-            .collect();
+        let channel_sums = |c: usize| {
+            (0..g.n)
+                .map(|n| {
+                    let [d, y, v] = [&dy[..], y_or_dy, &x[..]].map(|t| g.plane(t, n, c));
+                    grad_sums(d, y, v, mean[c], inv[c], relu)
+                })
+                .fold((0.0, 0.0), |t, p| (t.0 + p.0, t.1 + p.1))
+        };
         // `dz` for the residual, when the ReLU made it differ from `dy`.
         let want_dz = relu && node_r.is_some();
         let mut dz_out = (want_dz && node_x.is_some()).then(|| unwritten(x.len()));
-        if let Some(node) = node_x {
-            let m = g.count();
-            let mut dx = unwritten(x.len());
-            // One plane of the input gradient (and of `dz`, if wanted).
-            let plane = |i: usize, dxp: &mut [Slot], dzp: Option<&mut [Slot]>| {
-                let c = i % g.c;
-                let [dyp, yp, xp] = [&dy[..], y_or_dy, &x[..]].map(|t| &t[i * g.len..][..g.len]);
-                let (mu, inv) = (mean[c], inv[c]);
-                let k = gamma[c] * inv;
-                let mdb = (sums[c].0 / m) as f32;
-                let mdg = (sums[c].1 / m) as f32;
-                let grad = |d: f32, v: f32| k * (d - mdb - (v - mu) * inv * mdg);
-                let dzs = dyp
-                    .iter()
-                    .zip(yp)
-                    .map(|(&d, &y)| activation_grad(d, y, relu));
-                match dzp {
-                    Some(dzp) => {
-                        for (((o, z), d), &v) in dxp.iter_mut().zip(dzp).zip(dzs).zip(xp) {
-                            z.write(d);
-                            o.write(grad(d, v));
+        let sums: Vec<(f64, f64)> = match node_x {
+            None => (0..g.c).into_par_iter().map(channel_sums).collect(),
+            Some(node) => {
+                let m = g.count();
+                let mut dx = unwritten(x.len());
+                let dz_planes: Vec<Option<Vec<&mut [Slot]>>> = match dz_out.as_mut() {
+                    Some(dz) => g.by_channel(dz).into_iter().map(Some).collect(),
+                    None => (0..g.c).map(|_| None).collect(),
+                };
+                // Channel by channel: the sums, then the input gradient (and `dz`) over the
+                // same planes in reverse order, reading what the sums read last from cache.
+                let sums = g
+                    .by_channel(&mut dx)
+                    .into_par_iter()
+                    .zip(dz_planes)
+                    .enumerate()
+                    .map(|(c, (dxs, dzs))| {
+                        let s = channel_sums(c);
+                        let coef = PlaneGrad {
+                            k: gamma[c] * inv[c],
+                            mu: mean[c],
+                            inv: inv[c],
+                            mdb: (s.0 / m) as f32,
+                            mdg: (s.1 / m) as f32,
+                        };
+                        let mut dzs = dzs.map(|v| v.into_iter().rev());
+                        for (n, dxp) in dxs.into_iter().enumerate().rev() {
+                            let dzp = dzs.as_mut().and_then(Iterator::next);
+                            let [dyp, yp, xp] =
+                                [&dy[..], y_or_dy, &x[..]].map(|t| g.plane(t, n, c));
+                            grad_plane(dxp, dzp, dyp, yp, xp, relu, coef);
                         }
-                    }
-                    None if relu => {
-                        for ((o, d), &v) in dxp.iter_mut().zip(dzs).zip(xp) {
-                            o.write(grad(d, v));
-                        }
-                    }
-                    None => {
-                        for ((o, &d), &v) in dxp.iter_mut().zip(dyp).zip(xp) {
-                            o.write(grad(d, v));
-                        }
-                    }
-                }
-            };
-            if g.len > 0 {
-                match dz_out.as_mut() {
-                    Some(dz) => dx
-                        .par_chunks_mut(g.len)
-                        .zip(dz.par_chunks_mut(g.len))
-                        .enumerate()
-                        .for_each(|(i, (dxp, dzp))| plane(i, dxp, Some(dzp))),
-                    None => dx
-                        .par_chunks_mut(g.len)
-                        .enumerate()
-                        .for_each(|(i, dxp)| plane(i, dxp, None)),
-                }
+                        s
+                    })
+                    .collect();
+                // SAFETY: the channels' planes cover `dx`, each written in full.
+                let dx = unsafe { written(dx) };
+                grads.register::<Flex>(
+                    node.id,
+                    FlexTensor::from_data(burn::tensor::TensorData::new(dx, shape.clone())),
+                );
+                sums
             }
-            // SAFETY: the planes cover `dx`, each written in full.
-            let dx = unsafe { written(dx) };
-            grads.register::<Flex>(
-                node.id,
-                FlexTensor::from_data(burn::tensor::TensorData::new(dx, shape.clone())),
-            );
-        }
+        };
         let dz: Cow<'_, [f32]> = match (dz_out, want_dz) {
             // SAFETY: the input gradient's pass wrote every plane of `dz_out` (`g.len` > 0, or
             // `dz_out` is empty).
@@ -734,11 +648,7 @@ mod tests {
                 scale_b += dz.abs();
                 scale_g += (dz * xh).abs();
             }
-            let (got_b, got_g) = if relu {
-                grad_sums::<true>(&dy, &y, &x, mean, inv)
-            } else {
-                grad_sums::<false>(&dy, &y, &x, mean, inv)
-            };
+            let (got_b, got_g) = grad_sums(&dy, &y, &x, mean, inv, relu);
             assert!(
                 (got_b - want_b).abs() < 2e-6 * scale_b,
                 "relu {relu}: Σdz {got_b} {want_b}"
