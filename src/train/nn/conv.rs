@@ -34,8 +34,10 @@
 //! AVX-512 kernels of [`super::simd`] where the CPU has them. With those kernels the 3 × 3
 //! layers of stride 2 and padding 1 skip im2col too: their forward and weight gradient are the
 //! same products on pixels two apart of the bordered image (kept for the weight gradient as
-//! for stride 1; one image per thread, whatever the batch), and their input gradient stays on
-//! the unrolled path.
+//! for stride 1; one image per thread, whatever the batch). Where their input channels come in
+//! sixteens too, the input gradient goes by phases ([`simd::stride2_input_grad`]: each parity
+//! of input row and column is reached by 1, 2, 2 or 4 of the 9 taps, a direct product each on
+//! `dy` bordered channels-last); otherwise it stays on the unrolled path.
 //!
 //! [`conv2d`] takes this path for f32 tensors on the flex device, with or without autodiff, for
 //! any convolution with a bias, square kernel and stride, symmetric zero padding, no dilation
@@ -275,7 +277,8 @@ impl Geom {
 
     /// The 3 × 3 case of stride 2 and padding 1 with outputs in sixteens on AVX-512: the
     /// forward and the weight gradient on the direct kernels over the bordered image
-    /// ([`simd::stride2_rows`]), without im2col; the input gradient stays on the unrolled path.
+    /// ([`simd::stride2_rows`]), without im2col; the input gradient by phases where the input
+    /// channels come in sixteens as well ([`simd::stride2_input_grad`]).
     fn stride2(&self) -> bool {
         self.k == 3 && self.s == 2 && self.p == 1 && simd::covers(self.o)
     }
@@ -560,6 +563,9 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
         .filter(|_| wino::fits(g.o, g.c, g.h, g.w))
         .map(|wd| wino::kernels(wd, g.o, g.c));
     let (per_dy, group) = (bordered_len([g.o, g.h, g.w]), wino::group(g.h, g.w));
+    // The stride-2 path's input gradient by phases, when its `c` channels come in sixteens.
+    let phases = (g.stride2() && want.dx && simd::covers(g.c))
+        .then(|| simd::stride2_phase_weights(w, g.o, g.c));
     // One worker's images: `first..first + count`, its input-gradient slice if wanted; returns
     // its partial weight and bias gradients.
     let work = |first: usize, count: usize, mut dx: Option<&mut [MaybeUninit<f32>]>| {
@@ -645,7 +651,17 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                     par,
                 );
             }
-            if let Some(dx) = dx.as_deref_mut() {
+            if let (Some(dx), Some(phases)) = (dx.as_deref_mut(), &phases) {
+                // `dy` bordered channels-last, the gradient channels-last, then to planes.
+                let dyb_len = bordered_len([g.o, g.ho, g.wo]);
+                dcol.resize(dyb_len, 0.0);
+                let dyb = border_into(dy_n, [g.o, g.ho, g.wo], as_slots(&mut dcol));
+                let (dims, pin) = ([g.h, g.w, g.c], g.h * g.w);
+                wide.resize(pin * g.c, 0.0);
+                simd::stride2_input_grad(dyb, [g.ho, g.wo, g.o], phases, dims, &mut wide);
+                let dx_n = &mut dx[j * g.image()..][..g.image()];
+                to_planes(&wide, [g.c, pin], None, pin, dx_n);
+            } else if let Some(dx) = dx.as_deref_mut() {
                 let dx_n = zeroed(&mut dx[j * g.image()..][..g.image()]);
                 let wt = Mat::transposed(w, taps);
                 if g.direct() {
@@ -802,6 +818,12 @@ mod tests {
         check(2, 5, 16, [9, 7], 3, 2, 1);
         check(2, 1, 48, [3, 3], 3, 2, 1);
         check(2, 16, 64, [4, 58], 3, 2, 1);
+        // ... whose input gradients go by phases where the inputs come in sixteens too: odd
+        // sizes (the last row and column of a phase read the zero border), 32 input channels
+        // (two column blocks), a single pixel (three of the four phases empty).
+        check(2, 16, 32, [7, 9], 3, 2, 1);
+        check(3, 32, 16, [5, 3], 3, 2, 1);
+        check(2, 32, 16, [1, 1], 3, 2, 1);
         // Input exactly the kernel's size, no padding: one output pixel.
         check(2, 3, 2, [3, 3], 3, 1, 0);
     }
