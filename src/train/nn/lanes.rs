@@ -6,7 +6,9 @@
 //! compiler vectorises to whatever width it is allowed: [`widest!`] compiles a loop three
 //! times, for AVX-512F (16 lanes), for AVX2 with FMA (8) and for the baseline, and picks one
 //! per call. The arithmetic is the same Rust in every copy (Rust never contracts `a·b + c`
-//! into a fused multiply-add, and every sum keeps its order), so the copies give the same bits.
+//! into a fused multiply-add, and every sum keeps its order), so the copies give the same bits;
+//! the tests run every copy the CPU has (a thread-local cap on the dispatch) against the
+//! baseline's bits.
 //!
 //! On the Intel VM (AVX-512, 2 threads) the batch norm is about a fifth of the ResNet-18
 //! training step (64 × 48, width 16, batch 8) and bound by memory more than by arithmetic:
@@ -21,6 +23,25 @@ use super::kernels::sum_of;
 
 /// A float of an output buffer, written once.
 pub(super) type Slot = MaybeUninit<f32>;
+
+#[cfg(test)]
+thread_local! {
+    /// The widest copy [`widest!`] may take on this thread: 2 AVX-512F, 1 AVX2 + FMA, 0 the
+    /// baseline. The tests lower it to run every copy this CPU has.
+    static CAP: std::cell::Cell<u8> = const { std::cell::Cell::new(2) };
+}
+
+/// Whether [`widest!`] may take the copy of `level` (see `CAP`; always outside the tests).
+#[inline(always)]
+fn allowed(level: u8) -> bool {
+    #[cfg(test)]
+    return CAP.with(|c| c.get()) >= level;
+    #[cfg(not(test))]
+    {
+        let _ = level;
+        true
+    }
+}
 
 /// Defines `fn $name` as a dispatcher over three compilations of `$body`: AVX-512F, AVX2 with
 /// FMA, and the baseline, taken by the first the CPU has.
@@ -41,11 +62,12 @@ macro_rules! widest {
                 fn avx2($($arg: $ty),*) $(-> $ret)? {
                     body($($arg),*)
                 }
-                if std::arch::is_x86_feature_detected!("avx512f") {
+                if allowed(2) && std::arch::is_x86_feature_detected!("avx512f") {
                     // SAFETY: the CPU reports AVX-512F.
                     return unsafe { avx512($($arg),*) };
                 }
-                if std::arch::is_x86_feature_detected!("avx2")
+                if allowed(1)
+                    && std::arch::is_x86_feature_detected!("avx2")
                     && std::arch::is_x86_feature_detected!("fma")
                 {
                     // SAFETY: the CPU reports AVX2 and FMA.
@@ -266,8 +288,16 @@ mod tests {
 
     #[test]
     fn the_wide_copies_give_the_baselines_bits() {
-        // The loops run through the dispatch (AVX-512 or AVX2 where this CPU has them); the
-        // references are the same expressions written out here, compiled for the baseline.
+        // Every copy this CPU has (AVX-512, AVX2 + FMA, the baseline), through the dispatch;
+        // the references are the same expressions written out here, compiled for the baseline.
+        for cap in [2, 1, 0] {
+            CAP.with(|c| c.set(cap));
+            each_copy_matches(cap);
+        }
+        CAP.with(|c| c.set(2));
+    }
+
+    fn each_copy_matches(cap: u8) {
         for n in [0, 1, 15, 16, 37, 1000] {
             let (x, r, d) = (values(n, 1), values(n, 2), values(n, 3));
             let y: Vec<f32> = values(n, 4);
@@ -278,10 +308,14 @@ mod tests {
             assert_eq!(
                 plane_sum(&finite),
                 sum_of(&finite, f64::from),
-                "sum, {n} values"
+                "sum, {n} values, copy {cap}"
             );
             let sq = sum_of(&finite, |v| (v as f64 - 0.3) * (v as f64 - 0.3));
-            assert_eq!(plane_sq(&finite, 0.3), sq, "squares, {n} values");
+            assert_eq!(
+                plane_sq(&finite, 0.3),
+                sq,
+                "squares, {n} values, copy {cap}"
+            );
 
             let map = PlaneMap {
                 mu: 0.25,
@@ -302,7 +336,11 @@ mod tests {
                         activation(z, relu).to_bits()
                     })
                     .collect();
-                assert_eq!(bits(&out), want, "normalised, {n} values, relu {relu}");
+                assert_eq!(
+                    bits(&out),
+                    want,
+                    "normalised, {n} values, relu {relu}, copy {cap}"
+                );
             }
 
             let c = PlaneGrad {
@@ -320,14 +358,22 @@ mod tests {
                     .map(|i| (0.9 * (dz_want[i] - 0.05 - (x[i] - 0.1) * 1.3 * -0.2)).to_bits())
                     .collect();
                 let dz_bits: Vec<u32> = dz_want.iter().map(|v| v.to_bits()).collect();
-                assert_eq!(bits(&dx), dx_want, "dx, {n} values, relu {relu}");
-                assert_eq!(bits(&dz), dz_bits, "dz, {n} values, relu {relu}");
+                assert_eq!(
+                    bits(&dx),
+                    dx_want,
+                    "dx, {n} values, relu {relu}, copy {cap}"
+                );
+                assert_eq!(
+                    bits(&dz),
+                    dz_bits,
+                    "dz, {n} values, relu {relu}, copy {cap}"
+                );
                 let mut dx2 = vec![Slot::uninit(); n];
                 grad_plane(&mut dx2, None, &d, &y, &x, relu, c);
                 assert_eq!(
                     bits(&dx2),
                     dx_want,
-                    "dx without dz, {n} values, relu {relu}"
+                    "dx without dz, {n} values, relu {relu}, copy {cap}"
                 );
             }
         }
