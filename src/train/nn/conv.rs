@@ -62,7 +62,7 @@ use rayon::prelude::*;
 
 use super::kernels::{
     Mat, as_slots, border, border_into, bordered_len, dense, flex, product, sum_of, taps_major,
-    three_rows, three_rows_grad, to_pixels, to_planes, unborder_into, unwritten, written, zeroed,
+    three_rows, three_rows_grad, to_planes, unborder_into, unwritten, written, zeroed,
 };
 use super::{simd, wino};
 
@@ -633,13 +633,19 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                 }
                 continue;
             }
-            if want.dw && g.stride2() {
-                // The bordered input, and `dy` channels-last.
+            // The stride-2 path's `dy` bordered channels-last, once for both its weight gradient
+            // (the interior rows) and its input gradient by phases.
+            let dyb: Option<&[f32]> = if g.stride2() && (want.dw || phases.is_some()) {
+                dcol.resize(bordered_len([g.o, g.ho, g.wo]), 0.0);
+                Some(border_into(dy_n, [g.o, g.ho, g.wo], as_slots(&mut dcol)))
+            } else {
+                None
+            };
+            if let (true, Some(dyb)) = (want.dw, dyb) {
                 let pad = bordered_input(g, x, kept, i, &mut col);
-                wide.resize(pix * g.o, 0.0);
-                to_pixels(dy_n, [g.o, pix], pix, as_slots(&mut wide));
-                let dims = [g.ho, g.wo];
-                simd::stride2_rows_grad(pad, [g.w + 2, g.c], dims, &wide, g.o, &mut dw);
+                let (dims, row) = ([g.ho, g.wo], (g.wo + 2) * g.o);
+                let interior = &dyb[row + g.o..];
+                simd::stride2_rows_grad(pad, [g.w + 2, g.c], dims, interior, row, g.o, &mut dw);
             } else if want.dw {
                 let cols = unrolled(g, &x[i * g.image()..][..g.image()], &mut col);
                 product(
@@ -651,11 +657,8 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                     par,
                 );
             }
-            if let (Some(dx), Some(phases)) = (dx.as_deref_mut(), &phases) {
-                // `dy` bordered channels-last, the gradient channels-last, then to planes.
-                let dyb_len = bordered_len([g.o, g.ho, g.wo]);
-                dcol.resize(dyb_len, 0.0);
-                let dyb = border_into(dy_n, [g.o, g.ho, g.wo], as_slots(&mut dcol));
+            if let (Some(dx), Some(phases), Some(dyb)) = (dx.as_deref_mut(), &phases, dyb) {
+                // The gradient channels-last, then to planes.
                 let (dims, pin) = ([g.h, g.w, g.c], g.h * g.w);
                 wide.resize(pin * g.c, 0.0);
                 simd::stride2_input_grad(dyb, [g.ho, g.wo, g.o], phases, dims, &mut wide);

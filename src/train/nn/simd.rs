@@ -204,12 +204,14 @@ pub(super) fn stride2_rows(
 }
 
 /// `dw += ` the weight gradient of [`stride2_rows`]' product: `dw` `[9c, n]` as its weights,
-/// `dy` channels-last `[ho·wo, n]`.
+/// `dy` channels-last, `ho` rows of `wo` pixels of `n` floats, the rows `dy_row` floats apart
+/// (`wo·n` when packed, more when `dy` is bordered).
 pub(super) fn stride2_rows_grad(
     pad: &[f32],
     [wp, c]: [usize; 2],
     [ho, wo]: [usize; 2],
     dy: &[f32],
+    dy_row: usize,
     n: usize,
     dw: &mut [f32],
 ) {
@@ -222,7 +224,7 @@ pub(super) fn stride2_rows_grad(
         "simd::stride2_rows_grad: the image is too short"
     );
     assert!(
-        dy.len() >= ho * wo * n,
+        ho == 0 || (dy_row >= wo * n && dy.len() >= (ho - 1) * dy_row + wo * n),
         "simd::stride2_rows_grad: dy is too short"
     );
     assert_eq!(
@@ -237,12 +239,12 @@ pub(super) fn stride2_rows_grad(
         for oy in 0..ho {
             // SAFETY: AVX-512F is present (`covers`); row `oy` of kernel row `ky` reads
             // `(wo − 1)·2c + 3c` floats from padded row `2oy + ky`, within `stride2_reach`
-            // (asserted); `dy` holds that output row's `wo × n` floats, `part` is kernel row
-            // `ky`'s `3c × n` of `dw`.
+            // (asserted); `dy` holds that output row's `wo × n` floats from `oy·dy_row`
+            // (asserted), `part` is kernel row `ky`'s `3c × n` of `dw`.
             #[cfg(target_arch = "x86_64")]
             unsafe {
                 let rows = &pad[(2 * oy + ky) * wp * c..];
-                x86::grad_rows(rows, [c, wo, 2 * c], &dy[oy * wo * n..], n, part)
+                x86::grad_rows(rows, [c, wo, 2 * c], &dy[oy * dy_row..], n, part)
             };
             #[cfg(not(target_arch = "x86_64"))]
             unreachable!("{ky} {oy} {}", part.len());
