@@ -66,6 +66,9 @@ use super::kernels::{
 };
 use super::{simd, wino};
 
+/// The autodiff backend's float tensor over flex (its primitive and graph node).
+type AdTensor = FloatTensor<Autodiff<Flex>>;
+
 /// The convolution as a backend operation (NCHW, bias, square kernel `k` from the weight's
 /// shape, `stride` and zero padding `pad` on both axes).
 #[backend_extension(Flex, Autodiff)]
@@ -106,27 +109,47 @@ fn flex_conv(
     (flex(y, [g.n, g.o, g.ho, g.wo]), kept.map(Arc::new))
 }
 
-/// The backward step: the state is the forward's input and weight (cheap `Arc` clones) and,
-/// for a 3 × 3 layer, the input as the forward bordered it (one copy of the activation held
-/// until the backward pass, instead of a second bordering there).
+/// The backward step: the state is the forward's input (the autodiff tensor, for its node) and
+/// weight (cheap `Arc` clones) and, for a 3 × 3 layer, the input as the forward bordered it
+/// (one copy of the activation held until the backward pass, instead of a second bordering
+/// there).
+///
+/// Where another consumer of the input registered its gradient first (a residual block's skip
+/// path, or the shortcut's convolution), that gradient is taken out and added into each image's
+/// input gradient by the worker that writes it. Left to `Gradients::register`, the sum is one
+/// single-threaded pass over the whole activation with the workers idle: about 2 % of a
+/// ResNet-34 step's wall time (README, Benchmarks).
 #[derive(Debug)]
 struct ConvBackward;
 
 impl Backward<Flex, 3> for ConvBackward {
-    type State = (FlexTensor, FlexTensor, usize, usize, Option<Arc<Vec<f32>>>);
+    type State = (AdTensor, FlexTensor, usize, usize, Option<Arc<Vec<f32>>>);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node_x, node_w, node_b] = ops.parents;
         let dy = grads.consume::<Flex>(&ops.node);
-        let (x, weight, stride, pad, kept) = ops.state;
-        let g = Geom::of(&x, &weight, stride, pad);
+        let (x_ad, weight, stride, pad, kept) = ops.state;
+        let x = x_ad.primitive();
+        let g = Geom::of(x, &weight, stride, pad);
         let want = Want {
             dx: node_x.is_some(),
             dw: node_w.is_some(),
             db: node_b.is_some(),
         };
+        let earlier = want.dx.then(|| grads.remove::<Flex>(&x_ad)).flatten();
+        let shape = [g.n, g.c, g.h, g.w];
+        let (acc, earlier) = match earlier {
+            Some(e) if e.layout().shape().dims::<4>() == shape => (Some(e), None),
+            other => (None, other),
+        };
+        let acc_d = acc.as_ref().map(dense);
         let kept = kept.as_deref().map(Vec::as_slice);
-        let d = backward(&g, &dense(&x), kept, &dense(&weight), &dense(&dy), want);
+        let (x_d, w_d, dy_d) = (dense(x), dense(&weight), dense(&dy));
+        let d = backward(&g, &x_d, kept, &w_d, &dy_d, acc_d.as_deref(), want);
+        if let (Some(node), Some(e)) = (&node_x, earlier) {
+            // Not of the input's shape (not expected): back as it was, for `register` to add.
+            grads.register::<Flex>(node.id, e);
+        }
         if let (Some(node), Some(dx)) = (node_x, d.dx) {
             grads.register::<Flex>(node.id, flex(dx, [g.n, g.c, g.h, g.w]));
         }
@@ -155,16 +178,7 @@ impl<C: CheckpointStrategy> TrainConv for Autodiff<Flex, C> {
         {
             OpsKind::Tracked(prep) => {
                 let (y, kept) = flex_conv(xp, wp, bp, stride, pad, true);
-                prep.finish(
-                    (
-                        x.into_primitive(),
-                        weight.into_primitive(),
-                        stride,
-                        pad,
-                        kept,
-                    ),
-                    y,
-                )
+                prep.finish((x, weight.into_primitive(), stride, pad, kept), y)
             }
             OpsKind::UnTracked(prep) => prep.finish(flex_conv(xp, wp, bp, stride, pad, false).0),
         }
@@ -549,8 +563,16 @@ struct Grads {
 }
 
 /// The gradients; `kept` is the forward's bordered input of the 3 × 3 path (see [`forward`]),
-/// or `None` to border `x` again.
-fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], want: Want) -> Grads {
+/// or `None` to border `x` again; `acc`, of `x`'s shape, is added into the input gradient.
+fn backward(
+    g: &Geom,
+    x: &[f32],
+    kept: Option<&[f32]>,
+    w: &[f32],
+    dy: &[f32],
+    acc: Option<&[f32]>,
+    want: Want,
+) -> Grads {
     let (pix, taps) = (g.pixels(), g.taps());
     let (chunk, par) = split(g.n);
     let dw_len = if want.dw { g.o * taps } else { 0 };
@@ -566,6 +588,16 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
     // The stride-2 path's input gradient by phases, when its `c` channels come in sixteens.
     let phases = (g.stride2() && want.dx && simd::covers(g.c))
         .then(|| simd::stride2_phase_weights(w, g.o, g.c));
+    // `acc`'s images `i..i + count` into `dx`, which holds them written.
+    let add_acc = |dx: &mut [MaybeUninit<f32>], i: usize, count: usize| {
+        if let Some(acc) = acc {
+            let acc = &acc[i * g.image()..][..count * g.image()];
+            for (d, &a) in dx[..acc.len()].iter_mut().zip(acc) {
+                // SAFETY: every caller passes images that `work` has written in full.
+                d.write(unsafe { d.assume_init() } + a);
+            }
+        }
+    };
     // One worker's images: `first..first + count`, its input-gradient slice if wanted; returns
     // its partial weight and bias gradients.
     let work = |first: usize, count: usize, mut dx: Option<&mut [MaybeUninit<f32>]>| {
@@ -623,6 +655,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                             &mut scratch,
                             out,
                         );
+                        add_acc(out, first + first_j, pending);
                         pending = 0;
                     }
                 } else if let (Some(dx), Some(wd)) = (dx.as_deref_mut(), &wd) {
@@ -630,6 +663,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                     wide.resize(m * g.c, 0.0);
                     three_rows(dyb, [wp, g.o, m], wd, g.c, &mut wide, par);
                     unborder_into(&wide, [g.c, g.h, g.w], None, dx_n);
+                    add_acc(dx_n, i, 1);
                 }
                 continue;
             }
@@ -664,6 +698,7 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                 simd::stride2_input_grad(dyb, [g.ho, g.wo, g.o], phases, dims, &mut wide);
                 let dx_n = &mut dx[j * g.image()..][..g.image()];
                 to_planes(&wide, [g.c, pin], None, pin, dx_n);
+                add_acc(dx_n, i, 1);
             } else if let Some(dx) = dx.as_deref_mut() {
                 let dx_n = zeroed(&mut dx[j * g.image()..][..g.image()]);
                 let wt = Mat::transposed(w, taps);
@@ -680,6 +715,11 @@ fn backward(g: &Geom, x: &[f32], kept: Option<&[f32]>, w: &[f32], dy: &[f32], wa
                         par,
                     );
                     col2im(g, &dcol, dx_n);
+                }
+                if let Some(acc) = acc {
+                    for (d, &a) in dx_n.iter_mut().zip(&acc[i * g.image()..][..g.image()]) {
+                        *d += a;
+                    }
                 }
             }
         }
@@ -743,15 +783,33 @@ mod tests {
     use crate::train::nn::tests::{close_to_largest as close, values};
 
     /// Our convolution against burn's `Conv2d::forward`: values, and the gradients of
-    /// `Σ y ⊙ r` for a random `r` with respect to the input, weight and bias.
-    fn check(n: usize, c: usize, o: usize, [h, w]: [usize; 2], k: usize, s: usize, p: usize) {
+    /// `Σ y ⊙ r` for a random `r` with respect to the input, weight and bias; then again with
+    /// `Σ x ⊙ q` added, a second use of the input after the convolution (a residual block's
+    /// skip path), whose gradient the convolution's backward finds registered and adds in.
+    fn check(n: usize, c: usize, o: usize, hw: [usize; 2], k: usize, s: usize, p: usize) {
+        check_with(n, c, o, hw, k, s, p, false);
+        check_with(n, c, o, hw, k, s, p, true);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn check_with(
+        n: usize,
+        c: usize,
+        o: usize,
+        [h, w]: [usize; 2],
+        k: usize,
+        s: usize,
+        p: usize,
+        skip: bool,
+    ) {
         let dev = Device::flex().autodiff();
         let conv: Conv2d = Conv2dConfig::new([c, o], [k, k])
             .with_stride([s, s])
             .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
             .init(&dev);
         let x = Tensor::<4>::random([n, c, h, w], Distribution::Normal(0.0, 1.0), &dev);
-        let what = format!("n {n} c {c} o {o} {h}x{w} k {k} s {s} p {p}");
+        let q = Tensor::<4>::random([n, c, h, w], Distribution::Normal(0.0, 1.0), &dev);
+        let what = format!("n {n} c {c} o {o} {h}x{w} k {k} s {s} p {p} skip {skip}");
         assert!(covered(&conv, &x).is_some(), "{what}: not covered");
         let mut got = Vec::new();
         let mut r = None;
@@ -767,7 +825,11 @@ mod tests {
                     Tensor::random(y.dims(), Distribution::Normal(0.0, 1.0), &dev)
                 })
                 .clone();
-            let grads = (y.clone() * r).sum().backward();
+            let mut loss = (y.clone() * r).sum();
+            if skip {
+                loss = loss + (xi.clone() * q.clone()).sum();
+            }
+            let grads = loss.backward();
             let gx = xi.grad(&grads).unwrap();
             let gw = conv.weight.val().grad(&grads).unwrap();
             let gb = conv.bias.as_ref().unwrap().val().grad(&grads).unwrap();
