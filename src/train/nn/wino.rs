@@ -59,6 +59,11 @@ pub(super) fn group(h: usize, w: usize) -> usize {
 /// `[[1, 0, 0], [½, ½, ½], [½, −½, ½], [0, 0, 1]]`.
 pub(super) fn kernels(wk: &[f32], c: usize, n: usize) -> Vec<f32> {
     assert_eq!(wk.len(), 9 * c * n, "winograd: weights of another shape");
+    // Sixteen output channels at a time in fixed-size arrays, so the arithmetic vectorises
+    // across them (the nine taps of a channel pair are 9 rows `c·n` apart, and the 16 results
+    // 16 rows apart: element by element, the loads and stores did not). It runs on the calling
+    // thread, with the workers idle, once per layer in each pass.
+    const L: usize = 16;
     let mut u = vec![0.0f32; 16 * c * n];
     let g_rows = |f: [f32; 3]| {
         [
@@ -69,17 +74,27 @@ pub(super) fn kernels(wk: &[f32], c: usize, n: usize) -> Vec<f32> {
         ]
     };
     for ci in 0..c {
-        for o in 0..n {
-            let g = |ky: usize, kx: usize| wk[((ky * 3 + kx) * c + ci) * n + o];
-            // G g: 4 × 3, column by column.
-            let cols: [[f32; 4]; 3] =
-                std::array::from_fn(|kx| g_rows([g(0, kx), g(1, kx), g(2, kx)]));
-            for a in 0..4 {
-                // (G g) Gᵀ: row a of G g through G again.
-                let row = g_rows([cols[0][a], cols[1][a], cols[2][a]]);
-                for (b, v) in row.into_iter().enumerate() {
-                    u[((a * 4 + b) * c + ci) * n + o] = v;
+        for o0 in (0..n).step_by(L) {
+            let len = L.min(n - o0);
+            let mut g = [[0.0f32; L]; 9];
+            for (t, gt) in g.iter_mut().enumerate() {
+                gt[..len].copy_from_slice(&wk[(t * c + ci) * n + o0..][..len]);
+            }
+            let mut out = [[0.0f32; L]; 16];
+            for l in 0..L {
+                // G g: 4 × 3, column by column.
+                let cols: [[f32; 4]; 3] =
+                    std::array::from_fn(|kx| g_rows([g[kx][l], g[3 + kx][l], g[6 + kx][l]]));
+                for a in 0..4 {
+                    // (G g) Gᵀ: row a of G g through G again.
+                    let row = g_rows([cols[0][a], cols[1][a], cols[2][a]]);
+                    for (b, v) in row.into_iter().enumerate() {
+                        out[a * 4 + b][l] = v;
+                    }
                 }
+            }
+            for (ab, vals) in out.iter().enumerate() {
+                u[(ab * c + ci) * n + o0..][..len].copy_from_slice(&vals[..len]);
             }
         }
     }
