@@ -498,7 +498,7 @@ fn forward(
                     mut pads: Option<&mut [MaybeUninit<f32>]>| {
         let count = ys.len() / (g.o * pix);
         let group = wino::group(g.h, g.w);
-        let (mut own, mut scratch) = (Vec::new(), wino::Scratch::default());
+        let (mut own, mut scratch) = (Vec::new(), wino::Scratch::kept());
         for start in (0..count).step_by(group) {
             let len = group.min(count - start);
             let slots = match pads.as_deref_mut() {
@@ -604,7 +604,7 @@ fn backward(
         let mut dw = vec![0.0f32; dw_len];
         let mut db = vec![0.0f32; db_len];
         let (mut col, mut dcol, mut wide) = (Vec::new(), Vec::new(), Vec::new());
-        let (mut dgroup, mut pending, mut scratch) = (Vec::new(), 0, wino::Scratch::default());
+        let (mut dgroup, mut pending, mut scratch) = (Vec::new(), 0, wino::Scratch::kept());
         for j in 0..count {
             let i = first + j;
             let dy_n = &dy[i * g.o * pix..][..g.o * pix];
