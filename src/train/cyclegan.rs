@@ -8,7 +8,7 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use super::Progress;
 use super::batch::{Rng, images_to_tensor, tensor_to_images};
 use super::data::{ImageSpec, LabelledSet, Trajectory, UnlabelledSet};
-use super::nn::{Discriminator, GanShape, Generator, l1, lsgan};
+use super::nn::{Discriminator, FusedAdam, GanShape, Generator, l1, lsgan};
 
 const INFO: &str = "translator.json";
 
@@ -150,12 +150,7 @@ pub struct CycleGan {
 impl CycleGan {
     pub fn new(cfg: &TranslateConfig) -> Self {
         let dev = super::force::device();
-        let adam = || {
-            AdamConfig::new()
-                .with_beta_1(cfg.beta1)
-                .with_beta_2(0.999)
-                .init()
-        };
+        let adam = || FusedAdam::init(cfg.beta1, 0.999);
         let (gens, discs, adev) = super::force::build_networks(&dev, Some(cfg.seed), || {
             let adev = dev.clone().autodiff();
             let gens = Generators {

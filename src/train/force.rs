@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use burn::module::{Module, ModuleVisitor, Param};
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig};
+use burn::optim::{GradientsParams, ModuleOptimizer, SgdConfig};
 use burn::store::{BurnpackStore, ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use super::Progress;
 use super::batch::{Rng, Sequence, images_to_tensor, sample_sequences};
 use super::data::{ImageSpec, LabelledSet, Trajectory};
-use super::nn::{Depth, FastEncoder, ForceNet, ForceShape, gamma_l1};
+use super::nn::{Depth, FastEncoder, ForceNet, ForceShape, FusedAdam, gamma_l1};
 
 mod speed;
 pub use speed::{StepSpeed, step_speed};
@@ -252,7 +252,7 @@ fn initial_network(shape: &ForceShape, dev: &Device, seed: u64) -> (Device, Forc
 /// The optimiser `train` steps with (its state starts empty).
 fn new_optimizer(kind: Optimizer) -> ModuleOptimizer {
     match kind {
-        Optimizer::Adam => AdamConfig::new().init(),
+        Optimizer::Adam => FusedAdam::init(0.9, 0.999),
         Optimizer::Sgd => SgdConfig::new().init(),
     }
 }
@@ -848,7 +848,7 @@ mod tests {
             last_loss: 0.5,
             frames_per_trajectory: Some(60),
         };
-        (net, AdamConfig::new().init(), info)
+        (net, FusedAdam::init(0.9, 0.999), info)
     }
 
     /// The weights burn's resume file in `dir` holds.

@@ -22,6 +22,7 @@ use burn::tensor::ops::PadMode;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+mod adam;
 mod conv;
 mod fast;
 mod kernels;
@@ -29,6 +30,7 @@ mod lanes;
 mod norm;
 mod simd;
 mod wino;
+pub use adam::FusedAdam;
 pub use conv::conv2d;
 pub use fast::FastEncoder;
 pub use norm::{batch_norm, batch_norm_relu};
