@@ -87,10 +87,12 @@ impl Optimizer for FusedAdam {
         grad: Tensor<D>,
         state: Option<Self::State<D>>,
     ) -> (Tensor<D>, Option<Self::State<D>>) {
-        let amsgrad = state
-            .as_ref()
-            .is_some_and(|s| s.momentum.max_moment_2.is_some());
-        if amsgrad || !on_cpu_kernels(&tensor) || !on_cpu_kernels(&grad) {
+        // The moments as this pass reads them: f32 on the flex device, no AMSGrad maximum.
+        let moments_fit = state.as_ref().is_none_or(|s| {
+            let s = &s.momentum;
+            s.max_moment_2.is_none() && on_cpu_kernels(&s.moment_1) && on_cpu_kernels(&s.moment_2)
+        });
+        if !moments_fit || !on_cpu_kernels(&tensor) || !on_cpu_kernels(&grad) {
             return self.burn.step(lr, tensor, grad, state);
         }
         let (dev, dims) = (tensor.device(), tensor.dims());
