@@ -30,7 +30,6 @@ const EPSILON: f32 = 1e-5;
 pub struct FusedAdam {
     beta_1: f32,
     beta_2: f32,
-    epsilon: f32,
     burn: Adam,
 }
 
@@ -38,13 +37,16 @@ impl FusedAdam {
     /// The optimiser `AdamConfig::new().with_beta_1(beta_1).with_beta_2(beta_2).init()` gives,
     /// stepping through [`FusedAdam`].
     pub fn init(beta_1: f32, beta_2: f32) -> ModuleOptimizer {
+        ModuleOptimizer::from(Self::new(beta_1, beta_2))
+    }
+
+    fn new(beta_1: f32, beta_2: f32) -> Self {
         let config = AdamConfig::new().with_beta_1(beta_1).with_beta_2(beta_2);
-        ModuleOptimizer::from(Self {
+        Self {
             beta_1,
             beta_2,
-            epsilon: EPSILON,
             burn: config.build(),
-        })
+        }
     }
 
     /// One parameter's step on floats: `p`, and the moments `m`, `v` (zero before the first
@@ -55,7 +57,7 @@ impl FusedAdam {
         // burn: m̂ / (√v̂ + ε) as m·c / (√v + ε·√(1 − β₂ᵗ)), c = √(1 − β₂ᵗ) / (1 − β₁ᵗ).
         let bc2 = (1.0 - b2.powi(time)).sqrt();
         let c = bc2 / (1.0 - b1.powi(time));
-        let eps = self.epsilon * bc2;
+        let eps = EPSILON * bc2;
         p.par_chunks_mut(BLOCK)
             .zip(m.par_chunks_mut(BLOCK))
             .zip(v.par_chunks_mut(BLOCK))
@@ -133,12 +135,7 @@ mod tests {
     fn the_fused_step_matches_burns_adam() {
         let dev = Device::flex();
         for beta_1 in [0.9, 0.5] {
-            let fused = FusedAdam {
-                beta_1,
-                beta_2: 0.999,
-                epsilon: EPSILON,
-                burn: AdamConfig::new().with_beta_1(beta_1).build(),
-            };
+            let fused = FusedAdam::new(beta_1, 0.999);
             let theirs = AdamConfig::new().with_beta_1(beta_1).build();
             // More floats than one block, and not a multiple of it; gradients with zeros.
             let dims = [3, 7001];
@@ -154,8 +151,8 @@ mod tests {
                 (pa, sa) = fused.step(lr, pa, g.clone(), sa);
                 (pb, sb) = theirs.step(lr, pb, g, sb);
                 let (a, b) = (
-                    pa.to_data().to_vec::<f32>().unwrap(),
-                    pb.to_data().to_vec::<f32>().unwrap(),
+                    pa.to_data().try_to_vec::<f32>().unwrap(),
+                    pb.to_data().try_to_vec::<f32>().unwrap(),
                 );
                 let largest = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
                 for (i, (x, y)) in a.iter().zip(&b).enumerate() {
@@ -174,8 +171,8 @@ mod tests {
                     ("second", &ma.moment_2, &mb.moment_2),
                 ] {
                     assert_eq!(
-                        x.to_data().to_vec::<f32>().unwrap(),
-                        y.to_data().to_vec::<f32>().unwrap(),
+                        x.to_data().try_to_vec::<f32>().unwrap(),
+                        y.to_data().try_to_vec::<f32>().unwrap(),
                         "β₁ {beta_1}, step {step}: {which} moments"
                     );
                 }

@@ -151,7 +151,7 @@ impl Backward<Flex, 3> for ConvBackward {
             grads.register::<Flex>(node.id, e);
         }
         if let (Some(node), Some(dx)) = (node_x, d.dx) {
-            grads.register::<Flex>(node.id, flex(dx, [g.n, g.c, g.h, g.w]));
+            grads.register::<Flex>(node.id, flex(dx, shape));
         }
         if let (Some(node), Some(dw)) = (node_w, d.dw) {
             grads.register::<Flex>(node.id, flex(dw, [g.o, g.c, g.k, g.k]));
@@ -700,7 +700,6 @@ fn backward(
                 simd::stride2_input_grad(dyb, [g.ho, g.wo, g.o], phases, dims, &mut wide);
                 let dx_n = &mut dx[j * g.image()..][..g.image()];
                 to_planes(&wide, [g.c, pin], None, pin, dx_n);
-                add_acc(dx_n, i, 1);
             } else if let Some(dx) = dx.as_deref_mut() {
                 let dx_n = zeroed(&mut dx[j * g.image()..][..g.image()]);
                 let wt = Mat::transposed(w, taps);
@@ -718,11 +717,10 @@ fn backward(
                     );
                     col2im(g, &dcol, dx_n);
                 }
-                if let Some(acc) = acc {
-                    for (d, &a) in dx_n.iter_mut().zip(&acc[i * g.image()..][..g.image()]) {
-                        *d += a;
-                    }
-                }
+            }
+            if let Some(dx) = dx.as_deref_mut() {
+                // Both branches above wrote image `j` in full.
+                add_acc(&mut dx[j * g.image()..][..g.image()], i, 1);
             }
         }
         (dw, db)
