@@ -18,7 +18,6 @@ use burn::nn::{
     LstmConfig, PaddingConfig2d,
 };
 use burn::tensor::activation::{leaky_relu, relu, sigmoid, tanh};
-use burn::tensor::ops::PadMode;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
@@ -28,21 +27,14 @@ mod fast;
 mod kernels;
 mod lanes;
 mod norm;
+mod pad;
 mod simd;
 mod wino;
 pub use adam::FusedAdam;
 pub use conv::conv2d;
 pub use fast::FastEncoder;
-pub use norm::{batch_norm, batch_norm_relu};
-
-/// Reflection padding of the two spatial axes of an NCHW tensor (the CycleGAN generator pads
-/// this way so that borders carry image content, not zeros).
-pub fn reflect_pad(x: Tensor<4>, p: usize) -> Tensor<4> {
-    if p == 0 {
-        return x;
-    }
-    x.pad([(p, p), (p, p)], PadMode::Reflect)
-}
+pub use norm::{batch_norm, batch_norm_relu, instance_norm};
+pub use pad::reflect_pad;
 
 fn conv(c_in: usize, c_out: usize, k: usize, stride: usize, pad: usize, dev: &Device) -> Conv2d {
     Conv2dConfig::new([c_in, c_out], [k, k])
@@ -100,12 +92,10 @@ impl ResBlock {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let y = relu(
-            self.norm1
-                .forward(conv2d(&self.conv1, reflect_pad(x.clone(), 1))),
-        );
-        let y = self.norm2.forward(conv2d(&self.conv2, reflect_pad(y, 1)));
-        x + y
+        let y = conv2d(&self.conv1, reflect_pad(x.clone(), 1));
+        let y = instance_norm(&self.norm1, y, None, true);
+        let y = conv2d(&self.conv2, reflect_pad(y, 1));
+        instance_norm(&self.norm2, y, Some(x), false)
     }
 }
 
@@ -171,18 +161,20 @@ impl Generator {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let mut x = relu(
-            self.stem_norm
-                .forward(conv2d(&self.stem, reflect_pad(x, 3))),
+        let mut x = instance_norm(
+            &self.stem_norm,
+            conv2d(&self.stem, reflect_pad(x, 3)),
+            None,
+            true,
         );
         for d in &self.down {
-            x = relu(d.norm.forward(conv2d(&d.conv, x)));
+            x = instance_norm(&d.norm, conv2d(&d.conv, x), None, true);
         }
         for b in &self.blocks {
             x = b.forward(x);
         }
         for u in &self.up {
-            x = relu(u.norm.forward(u.conv.forward(x)));
+            x = instance_norm(&u.norm, u.conv.forward(x), None, true);
         }
         tanh(conv2d(&self.head, reflect_pad(x, 3)))
     }
@@ -230,7 +222,7 @@ impl Discriminator {
         for l in &self.layers {
             x = conv2d(&l.conv, x);
             if let Some(n) = &l.norm {
-                x = n.forward(x);
+                x = instance_norm(n, x, None, false);
             }
             x = leaky_relu(x, 0.2);
         }

@@ -41,7 +41,7 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{
     Autodiff, AutodiffBackend, Backend, Dispatch, ExtensionType, Flex, backend_extension,
 };
-use burn::nn::BatchNorm;
+use burn::nn::{BatchNorm, InstanceNorm};
 use burn::tensor::Tensor;
 use burn::tensor::activation::relu;
 use rayon::prelude::*;
@@ -458,6 +458,53 @@ pub fn batch_norm_relu<const D: usize>(
     fused(bn, x, residual, true)
 }
 
+/// `relu(norm.forward(x) + residual)` for an instance norm (the ReLU only if `with_relu`, the
+/// addition only with a residual): on this module's loops wherever `x` is f32 on the flex
+/// device, in training or not, since an instance norm keeps no running statistics. Each image's
+/// channel is its own group, so `[N, C, H, W]` is normalised as the batch norm above normalises
+/// `[1, N·C, H, W]` (the same reshape, no copy), with the affine parameters, if any, repeated
+/// per image (their gradients summed back by the repeat). burn's `InstanceNorm::forward` takes
+/// the same statistics (biased variance, `ε` inside the root) from generic tensor operations:
+/// about ten passes and graph nodes a layer, all on the calling thread, where the CycleGAN
+/// spent a good part of its step (README, Benchmarks).
+pub fn instance_norm(
+    norm: &InstanceNorm,
+    x: Tensor<4>,
+    residual: Option<Tensor<4>>,
+    with_relu: bool,
+) -> Tensor<4> {
+    if !on_cpu_kernels(&x) || residual.as_ref().is_some_and(|r| !on_cpu_kernels(r)) {
+        let mut y = norm.forward(x);
+        if let Some(r) = residual {
+            y = y + r;
+        }
+        return if with_relu { relu(y) } else { y };
+    }
+    let [n, c, h, w] = x.dims();
+    let dev = x.device();
+    let (gamma, beta) = match (&norm.gamma, &norm.beta) {
+        (Some(g), Some(b)) if norm.affine => (g.val().repeat_dim(0, n), b.val().repeat_dim(0, n)),
+        _ => (
+            Tensor::<1>::ones([n * c], &dev),
+            Tensor::<1>::zeros([n * c], &dev),
+        ),
+    };
+    let planes = |t: Tensor<4>| t.reshape([1, n * c, h, w]).into_dispatch();
+    let (x, gamma, beta) = (planes(x), gamma.into_dispatch(), beta.into_dispatch());
+    let out = match residual {
+        Some(r) => <Dispatch as TrainNorm>::train_batch_norm_add(
+            x,
+            gamma,
+            beta,
+            planes(r),
+            with_relu,
+            norm.epsilon,
+        ),
+        None => <Dispatch as TrainNorm>::train_batch_norm(x, gamma, beta, with_relu, norm.epsilon),
+    };
+    Tensor::<4>::from_dispatch(out.output).reshape([n, c, h, w])
+}
+
 fn fused<const D: usize>(
     bn: &BatchNorm,
     x: Tensor<D>,
@@ -504,7 +551,8 @@ fn fused<const D: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use burn::nn::BatchNormConfig;
+    use burn::module::Module;
+    use burn::nn::{BatchNormConfig, InstanceNormConfig};
     use burn::tensor::{Device, Distribution};
 
     use crate::train::nn::tests::{close_to_largest as close, values};
@@ -587,6 +635,83 @@ mod tests {
             check([4, 3, 5, 6], 0.0, 1.0, residual, with_relu);
             check([2, 4, 3, 11], 0.5, 2.0, residual, with_relu);
         }
+    }
+
+    /// Our instance norm against burn's `InstanceNorm::forward` (then `+ r0`, then burn's ReLU,
+    /// as asked): output and the gradients of `Σ y ⊙ r` with respect to the input, the residual
+    /// and, when affine, γ and β; and the output without autodiff.
+    fn check_instance(dims: [usize; 4], affine: bool, residual: bool, with_relu: bool) {
+        let what =
+            format!("instance {dims:?} affine {affine} residual {residual} relu {with_relu}");
+        let dev = Device::flex().autodiff();
+        let normal = || Tensor::<4>::random(dims, Distribution::Normal(0.0, 1.0), &dev);
+        // Each plane its own offset and spread, so that one set of statistics for the whole
+        // batch or channel would be visibly wrong.
+        let x = normal() * normal().exp() + normal().mul_scalar(3.0);
+        let (r0, r) = (normal(), normal());
+        let mut norm = InstanceNormConfig::new(dims[1])
+            .with_affine(affine)
+            .init(&dev);
+        norm.gamma = norm
+            .gamma
+            .map(|p| p.map(|g| g.mul_scalar(1.5).add_scalar(-0.25).detach().require_grad()));
+        norm.beta = norm
+            .beta
+            .map(|p| p.map(|b| b.add_scalar(0.3).detach().require_grad()));
+        let mut got = Vec::new();
+        for ours in [true, false] {
+            let xi = x.clone().detach().require_grad();
+            let ri = r0.clone().detach().require_grad();
+            let res = residual.then(|| ri.clone());
+            let y = if ours {
+                instance_norm(&norm, xi.clone(), res, with_relu)
+            } else {
+                let mut y = norm.forward(xi.clone());
+                if let Some(res) = res {
+                    y = y + res;
+                }
+                if with_relu { relu(y) } else { y }
+            };
+            let grads = (y.clone() * r.clone()).sum().backward();
+            let mut out = vec![values(y), values(xi.grad(&grads).unwrap())];
+            if residual {
+                out.push(values(ri.grad(&grads).unwrap()));
+            }
+            if affine {
+                for p in [&norm.gamma, &norm.beta] {
+                    out.push(values(p.as_ref().unwrap().val().grad(&grads).unwrap()));
+                }
+            }
+            got.push(out);
+        }
+        for (i, (a, b)) in got[0].iter().zip(&got[1]).enumerate() {
+            close(&format!("{what}: part {i} (y, dx, [dr], [dγ, dβ])"), a, b);
+        }
+        let plain = Device::flex();
+        let norm = norm.valid();
+        let xv = Tensor::<4>::from_data(x.to_data(), &plain);
+        let ours = instance_norm(&norm, xv.clone(), None, with_relu);
+        let burns = if with_relu {
+            relu(norm.forward(xv))
+        } else {
+            norm.forward(xv)
+        };
+        close(
+            &format!("{what}: without autodiff"),
+            &values(ours),
+            &values(burns),
+        );
+    }
+
+    #[test]
+    fn the_instance_norm_matches_burns_values_and_gradients() {
+        for affine in [false, true] {
+            for (residual, with_relu) in [(false, false), (false, true), (true, false)] {
+                check_instance([3, 4, 5, 6], affine, residual, with_relu);
+            }
+        }
+        // Planes of 21 values (a tail after the sixteen-lane blocks), one image.
+        check_instance([1, 2, 7, 3], false, true, true);
     }
 
     #[test]
