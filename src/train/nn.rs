@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 mod adam;
 mod conv;
+mod deconv;
 mod fast;
 mod kernels;
 mod lanes;
@@ -32,6 +33,7 @@ mod simd;
 mod wino;
 pub use adam::FusedAdam;
 pub use conv::conv2d;
+pub use deconv::conv_transpose2d;
 pub use fast::FastEncoder;
 pub use norm::{batch_norm, batch_norm_relu, instance_norm};
 pub use pad::reflect_pad;
@@ -174,7 +176,7 @@ impl Generator {
             x = b.forward(x);
         }
         for u in &self.up {
-            x = instance_norm(&u.norm, u.conv.forward(x), None, true);
+            x = instance_norm(&u.norm, conv_transpose2d(&u.conv, x), None, true);
         }
         tanh(conv2d(&self.head, reflect_pad(x, 3)))
     }

@@ -228,7 +228,7 @@ pub(super) fn on_cpu_kernels<const D: usize>(x: &Tensor<D>) -> bool {
 
 /// The sizes of one convolution.
 #[derive(Debug, Clone, Copy)]
-struct Geom {
+pub(super) struct Geom {
     n: usize,
     c: usize,
     h: usize,
@@ -246,10 +246,20 @@ impl Geom {
         let [n, c, h, w]: [usize; 4] = x.layout().shape().dims();
         let [o, ci, k, kw]: [usize; 4] = weight.layout().shape().dims();
         assert!(
-            ci == c && kw == k && s > 0 && h + 2 * p >= k && w + 2 * p >= k,
-            "train_conv2d: input {:?} and weight {:?} (stride {s}, padding {p}) do not fit",
+            ci == c && kw == k,
+            "train_conv2d: input {:?} and weight {:?} do not fit",
             [n, c, h, w],
             [o, ci, k, kw]
+        );
+        Self::new([n, c, h, w], o, k, s, p)
+    }
+
+    /// `n` images of `c × h × w` into `o` channels by a `k × k` kernel of stride `s` and
+    /// padding `p`.
+    pub(super) fn new([n, c, h, w]: [usize; 4], o: usize, k: usize, s: usize, p: usize) -> Self {
+        assert!(
+            s > 0 && h + 2 * p >= k && w + 2 * p >= k,
+            "train_conv2d: {k} × {k} kernel, stride {s}, padding {p} on {h} × {w}"
         );
         Self {
             n,
@@ -427,7 +437,7 @@ fn split(n: usize) -> (usize, Parallelism) {
 /// The convolution's output; with `keep`, also every image as the 3 × 3 and stride-2 paths
 /// [`border`]ed it (`n` × [`bordered_len`] floats), which the weight gradient reads again
 /// (`None` for the other paths).
-fn forward(
+pub(super) fn forward(
     g: &Geom,
     x: &[f32],
     w: &[f32],
@@ -550,21 +560,21 @@ fn forward(
 }
 
 #[derive(Debug, Clone, Copy)]
-struct Want {
-    dx: bool,
-    dw: bool,
-    db: bool,
+pub(super) struct Want {
+    pub(super) dx: bool,
+    pub(super) dw: bool,
+    pub(super) db: bool,
 }
 
-struct Grads {
-    dx: Option<Vec<f32>>,
-    dw: Option<Vec<f32>>,
-    db: Option<Vec<f32>>,
+pub(super) struct Grads {
+    pub(super) dx: Option<Vec<f32>>,
+    pub(super) dw: Option<Vec<f32>>,
+    pub(super) db: Option<Vec<f32>>,
 }
 
 /// The gradients; `kept` is the forward's bordered input of the 3 × 3 path (see [`forward`]),
 /// or `None` to border `x` again; `acc`, of `x`'s shape, is added into the input gradient.
-fn backward(
+pub(super) fn backward(
     g: &Geom,
     x: &[f32],
     kept: Option<&[f32]>,
