@@ -17,10 +17,11 @@ use burn::nn::{
     BatchNorm, BatchNormConfig, InstanceNorm, InstanceNormConfig, Linear, LinearConfig, Lstm,
     LstmConfig, PaddingConfig2d,
 };
-use burn::tensor::activation::{leaky_relu, relu, sigmoid, tanh};
+use burn::tensor::activation::{relu, sigmoid, tanh};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+mod act;
 mod adam;
 mod conv;
 mod deconv;
@@ -31,6 +32,7 @@ mod norm;
 mod pad;
 mod simd;
 mod wino;
+pub use act::leaky_relu;
 pub use adam::FusedAdam;
 pub use conv::conv2d;
 pub use deconv::conv_transpose2d;

@@ -748,11 +748,16 @@ pub(super) fn backward(
             .map(|c| work(c * chunk, chunk.min(g.n - c * chunk), None))
             .collect(),
     };
-    let (mut dw, mut db) = (vec![0.0f32; dw_len], vec![0.0f32; db_len]);
+    // The workers' partial sums added in order (the first as the start: `0 + a` is `a`), the
+    // weight gradient's in parallel blocks: a 256-channel 4 × 4 layer's is 2 MB.
+    let mut parts = parts.into_iter();
+    let (mut dw, mut db) = parts
+        .next()
+        .unwrap_or_else(|| (vec![0.0f32; dw_len], vec![0.0f32; db_len]));
     for (pw, pb) in parts {
-        for (a, v) in dw.iter_mut().zip(&pw) {
-            *a += v;
-        }
+        dw.par_chunks_mut(1 << 14)
+            .zip(pw.par_chunks(1 << 14))
+            .for_each(|(a, v)| a.iter_mut().zip(v).for_each(|(a, v)| *a += v));
         for (a, v) in db.iter_mut().zip(&pb) {
             *a += v;
         }
