@@ -64,7 +64,7 @@ use super::kernels::{
     Mat, as_slots, border, border_into, bordered_len, dense, flex, product, taps_major, three_rows,
     three_rows_grad, to_planes, unborder_into, unwritten, written, zeroed,
 };
-use super::{lanes, simd, wino};
+use super::{deconv, lanes, simd, wino};
 
 /// The autodiff backend's float tensor over flex (its primitive and graph node).
 type AdTensor = FloatTensor<Autodiff<Flex>>;
@@ -145,7 +145,30 @@ impl Backward<Flex, 3> for ConvBackward {
         let acc_d = acc.as_ref().map(dense);
         let kept = kept.as_deref().map(Vec::as_slice);
         let (x_d, w_d, dy_d) = (dense(x), dense(&weight), dense(&dy));
-        let d = backward(&g, &x_d, kept, &w_d, &dy_d, acc_d.as_deref(), want);
+        // Few output channels: the gradients on [`deconv`]'s loops where they take them.
+        let acc = acc_d.as_deref();
+        let turned = want.dx && deconv::turns(g.s, g.p, g.k, g.o);
+        let few = want.dw && deconv::few_outputs(g.s, g.p, g.k, g.o, g.c);
+        let here = Want {
+            dx: want.dx && !turned,
+            dw: want.dw && !few,
+            db: want.db,
+        };
+        let mut d = backward(&g, &x_d, kept, &w_d, &dy_d, acc, here);
+        let dims = [g.n, g.c, g.h, g.w];
+        if turned {
+            d.dx = Some(deconv::turned_input_grad(
+                dims,
+                g.o,
+                [g.k, g.p],
+                &w_d,
+                &dy_d,
+                acc,
+            ));
+        }
+        if few {
+            d.dw = Some(deconv::few_outputs_weight_grad(dims, g.o, g.k, &x_d, &dy_d));
+        }
         if let (Some(node), Some(e)) = (&node_x, earlier) {
             // Not of the input's shape (not expected): back as it was, for `register` to add.
             grads.register::<Flex>(node.id, e);
@@ -906,6 +929,20 @@ mod tests {
         check(2, 32, 16, [1, 1], 3, 2, 1);
         // Input exactly the kernel's size, no padding: one output pixel.
         check(2, 3, 2, [3, 3], 3, 1, 0);
+    }
+
+    #[test]
+    fn layers_with_few_outputs_take_the_turned_input_gradient_and_the_per_tap_weights() {
+        // At most four outputs, stride 1 (`deconv::turns`): the generator's 7 × 7 head of 32
+        // channels into 3, unpadded (both gradients on `deconv`'s loops), with 4 outputs and
+        // 16 inputs, and a padded layer (the discriminator's last, 4 × 4 padding 1, into one
+        // score; its weight gradient on the unrolled path) and padding 2 of a 5 × 5 kernel on
+        // channels not in sixteens. The second run of each (`check`'s `skip`) adds a gradient
+        // registered earlier into the turned input gradient.
+        check(2, 32, 3, [12, 14], 7, 1, 0);
+        check(3, 16, 4, [9, 8], 3, 1, 0);
+        check(2, 64, 1, [3, 4], 4, 1, 1);
+        check(1, 5, 2, [7, 6], 5, 1, 2);
     }
 
     #[test]

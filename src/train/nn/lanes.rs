@@ -96,6 +96,48 @@ widest! {
     }
 }
 
+widest! {
+    /// One tap's weight gradient of a stride-1, unpadded convolution with at most four output
+    /// channels: `out[o·c + ci] = Σ_images Σ_(y, x) dy[o, y, x] · x[y + ky, x + kx, ci]` for
+    /// `dims = [c, w, ho, wo]` and `tap = [ky, kx]`, over `images`, each an input channels-last
+    /// (`w` pixels a row, `c` floats a pixel, `c` in sixteens) and its four output-gradient
+    /// planes (missing outputs as zero planes). Sixteen channels at a time, their four sums in
+    /// registers while the pixels stream past.
+    pub(super) fn tap_grad(
+        images: &[(&[f32], [&[f32]; 4])],
+        dims: [usize; 4],
+        tap: [usize; 2],
+        out: &mut [f32],
+    ) {
+        let ([c, w, ho, wo], [ky, kx]) = (dims, tap);
+        let o = out.len() / c.max(1);
+        out.fill(0.0);
+        for (xcl, dy) in images {
+            for c0 in (0..c).step_by(16) {
+                let mut acc = [[0.0f32; 16]; 4];
+                for y in 0..ho {
+                    let row = &xcl[((y + ky) * w + kx) * c..][..wo * c];
+                    let d = dy.map(|p| &p[y * wo..][..wo]);
+                    for x in 0..wo {
+                        let v: &[f32; 16] = row[x * c + c0..][..16].try_into().unwrap();
+                        for (a, d) in acc.iter_mut().zip(&d) {
+                            let g = d[x];
+                            for j in 0..16 {
+                                a[j] += g * v[j];
+                            }
+                        }
+                    }
+                }
+                for (oi, a) in acc.iter().enumerate().take(o) {
+                    for (t, v) in out[oi * c + c0..][..16].iter_mut().zip(a) {
+                        *t += v;
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// The ReLU as burn's flex backend computes it: NaN goes through.
 #[inline(always)]
 pub(super) fn activation(z: f32, relu: bool) -> f32 {
