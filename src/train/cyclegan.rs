@@ -255,7 +255,8 @@ impl CycleGan {
         for i in 0..=steps {
             let (s, t) = (img(&gan), img(&gan));
             let t0 = std::time::Instant::now();
-            let _ = gan.step(s, t, cfg.lr);
+            // On the pool, as `translate` runs its steps.
+            let _ = super::nn::on_pool(|| gan.step(s, t, cfg.lr));
             if i >= 1 {
                 timed += t0.elapsed().as_secs_f64();
             }
@@ -310,6 +311,16 @@ fn pick<'a>(trajs: &'a [Trajectory], spec: &ImageSpec, n: usize, rng: &mut Rng) 
 /// translated source dataset with the source forces, a prepared dataset) and `samples/`
 /// (I_s | Î_t | I_t grids as PNG).
 pub fn translate(
+    source: &LabelledSet,
+    target: &UnlabelledSet,
+    cfg: &TranslateConfig,
+    out: &Path,
+    progress: Progress,
+) -> anyhow::Result<Translated> {
+    super::nn::on_pool(|| translate_here(source, target, cfg, out, progress))
+}
+
+fn translate_here(
     source: &LabelledSet,
     target: &UnlabelledSet,
     cfg: &TranslateConfig,

@@ -327,8 +327,20 @@ fn rates(sequences: usize, seq_len: usize, secs: f64) -> String {
     )
 }
 
-/// Train (or resume training of) a force model on `set`, writing checkpoints into `out`.
+/// Train (or resume training of) a force model on `set`, writing checkpoints into `out`; on a
+/// worker of rayon's pool ([`super::nn::on_pool`]).
 pub fn train(
+    set: &LabelledSet,
+    cfg: &ForceConfig,
+    method: &str,
+    out: &Path,
+    resume: bool,
+    progress: Progress,
+) -> anyhow::Result<TrainReport> {
+    super::nn::on_pool(|| train_here(set, cfg, method, out, resume, progress))
+}
+
+fn train_here(
     set: &LabelledSet,
     cfg: &ForceConfig,
     method: &str,

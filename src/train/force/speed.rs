@@ -43,12 +43,15 @@ pub fn step_speed(cfg: &ForceConfig, spec: ImageSpec, steps: usize) -> StepSpeed
     let mut timed = 0.0;
     for i in 0..steps + 2 {
         let t0 = std::time::Instant::now();
-        let x = images_to_tensor(&refs, &spec, &adev).reshape([b, t, 3, h, w]);
-        let y = Tensor::<3>::from_data(TensorData::new(labels.clone(), [b, t, 3]), &adev);
-        let loss = gamma_l1(net.forward(x), y, cfg.gamma);
-        let _ = loss.clone().into_scalar::<f32>();
-        let grads = GradientsParams::from_grads(loss.backward(), &net);
-        net = optim.step(cfg.lr, net, grads);
+        // On the pool, as `train` runs its steps.
+        net = crate::train::nn::on_pool(|| {
+            let x = images_to_tensor(&refs, &spec, &adev).reshape([b, t, 3, h, w]);
+            let y = Tensor::<3>::from_data(TensorData::new(labels.clone(), [b, t, 3]), &adev);
+            let loss = gamma_l1(net.forward(x), y, cfg.gamma);
+            let _ = loss.clone().into_scalar::<f32>();
+            let grads = GradientsParams::from_grads(loss.backward(), &net);
+            optim.step(cfg.lr, net, grads)
+        });
         if i >= 2 {
             timed += t0.elapsed().as_secs_f64();
         }
