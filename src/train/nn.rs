@@ -31,6 +31,7 @@ mod lanes;
 mod norm;
 mod pad;
 mod simd;
+mod unroll;
 mod wino;
 pub use act::leaky_relu;
 pub use adam::FusedAdam;

@@ -16,10 +16,9 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::tensor::activation::leaky_relu as burns_leaky_relu;
 use burn::tensor::{Tensor, TensorData};
-use rayon::prelude::*;
 
 use super::conv::on_cpu_kernels;
-use super::kernels::dense;
+use super::kernels::{dense, map2};
 
 /// A leaky ReLU of slope `slope` below zero, as a backend operation.
 #[backend_extension(Flex, Autodiff)]
@@ -27,26 +26,10 @@ pub trait TrainLeaky: Backend {
     fn leaky_relu(x: FloatTensor<Self>, slope: f64) -> FloatTensor<Self>;
 }
 
-/// Floats a task: small enough that both workers share a discriminator's activations.
-const CHUNK: usize = 8192;
-
-/// `f(x_i, d_i)` for each element, in parallel.
-fn map(x: &[f32], d: &[f32], f: impl Fn(f32, f32) -> f32 + Sync) -> Vec<f32> {
-    let mut out = vec![0.0f32; x.len()];
-    out.par_chunks_mut(CHUNK)
-        .zip(x.par_chunks(CHUNK).zip(d.par_chunks(CHUNK)))
-        .for_each(|(o, (x, d))| {
-            for ((o, &x), &d) in o.iter_mut().zip(x).zip(d) {
-                *o = f(x, d);
-            }
-        });
-    out
-}
-
 fn flex_leaky(x: &FlexTensor, slope: f64) -> FlexTensor {
     let a = slope as f32;
     let xs = dense(x);
-    let y = map(&xs, &xs, |x, _| if x < 0.0 { a * x } else { x });
+    let y = map2(&xs, &xs, |x, _| if x < 0.0 { a * x } else { x });
     FlexTensor::from_data(TensorData::new(y, x.layout().shape().clone()))
 }
 
@@ -69,7 +52,7 @@ impl Backward<Flex, 1> for LeakyBackward {
         let (x, slope) = ops.state;
         if let Some(node) = node {
             let a = slope as f32;
-            let dx = map(
+            let dx = map2(
                 &dense(&x),
                 &dense(&dy),
                 |x, d| if x < 0.0 { a * d } else { d },
@@ -111,6 +94,7 @@ mod tests {
     use super::*;
     use burn::tensor::{Device, Distribution};
 
+    use crate::train::nn::kernels::BLOCK;
     use crate::train::nn::tests::values;
 
     #[test]
@@ -118,7 +102,7 @@ mod tests {
         // Enough values for several tasks, exact zeros among them (burn passes zero through
         // with gradient 1), and a tail after the last whole task.
         let dev = Device::flex().autodiff();
-        let n = 3 * (CHUNK + 77);
+        let n = 3 * (BLOCK + 77);
         let x = Tensor::<1>::random([n], Distribution::Normal(0.0, 1.0), &dev);
         let x = x.clone().mask_fill(x.abs().lower_elem(0.05), 0.0);
         let x = x.reshape([1, 3, 1, n / 3]);

@@ -61,9 +61,11 @@ use gemm::Parallelism;
 use rayon::prelude::*;
 
 use super::kernels::{
-    Mat, as_slots, border, border_into, bordered_len, dense, flex, product, taps_major, three_rows,
-    three_rows_grad, to_planes, unborder_into, unwritten, written, zeroed,
+    Mat, add_into, as_slots, border, border_into, bordered_len, dense, flex, product, taps_major,
+    three_rows, three_rows_grad, to_planes, unborder_into, unwritten, written, zeroed,
 };
+use super::unroll::Geom;
+use super::unroll::{col2im, unrolled};
 use super::{deconv, lanes, simd, wino};
 
 /// The autodiff backend's float tensor over flex (its primitive and graph node).
@@ -155,10 +157,9 @@ impl Backward<Flex, 3> for ConvBackward {
             db: want.db,
         };
         let mut d = backward(&g, &x_d, kept, &w_d, &dy_d, acc, here);
-        let dims = [g.n, g.c, g.h, g.w];
         if turned {
             d.dx = Some(deconv::turned_input_grad(
-                dims,
+                shape,
                 g.o,
                 [g.k, g.p],
                 &w_d,
@@ -167,7 +168,9 @@ impl Backward<Flex, 3> for ConvBackward {
             ));
         }
         if few {
-            d.dw = Some(deconv::few_outputs_weight_grad(dims, g.o, g.k, &x_d, &dy_d));
+            d.dw = Some(deconv::few_outputs_weight_grad(
+                shape, g.o, g.k, &x_d, &dy_d,
+            ));
         }
         if let (Some(node), Some(e)) = (&node_x, earlier) {
             // Not of the input's shape (not expected): back as it was, for `register` to add.
@@ -247,184 +250,6 @@ fn covered(conv: &Conv2d, x: &Tensor<4>) -> Option<(usize, usize, Tensor<1>)> {
 /// extensions of this module and [`super::norm`] are implemented for.
 pub(super) fn on_cpu_kernels<const D: usize>(x: &Tensor<D>) -> bool {
     matches!(x.device().inner().as_dispatch(), DispatchDevice::Flex(_)) && x.dtype() == DType::F32
-}
-
-/// The sizes of one convolution.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Geom {
-    n: usize,
-    c: usize,
-    h: usize,
-    w: usize,
-    o: usize,
-    k: usize,
-    s: usize,
-    p: usize,
-    ho: usize,
-    wo: usize,
-}
-
-impl Geom {
-    fn of(x: &FlexTensor, weight: &FlexTensor, s: usize, p: usize) -> Self {
-        let [n, c, h, w]: [usize; 4] = x.layout().shape().dims();
-        let [o, ci, k, kw]: [usize; 4] = weight.layout().shape().dims();
-        assert!(
-            ci == c && kw == k,
-            "train_conv2d: input {:?} and weight {:?} do not fit",
-            [n, c, h, w],
-            [o, ci, k, kw]
-        );
-        Self::new([n, c, h, w], o, k, s, p)
-    }
-
-    /// `n` images of `c × h × w` into `o` channels by a `k × k` kernel of stride `s` and
-    /// padding `p`.
-    pub(super) fn new([n, c, h, w]: [usize; 4], o: usize, k: usize, s: usize, p: usize) -> Self {
-        assert!(
-            s > 0 && h + 2 * p >= k && w + 2 * p >= k,
-            "train_conv2d: {k} × {k} kernel, stride {s}, padding {p} on {h} × {w}"
-        );
-        Self {
-            n,
-            c,
-            h,
-            w,
-            o,
-            k,
-            s,
-            p,
-            ho: (h + 2 * p - k) / s + 1,
-            wo: (w + 2 * p - k) / s + 1,
-        }
-    }
-
-    fn pixels(&self) -> usize {
-        self.ho * self.wo
-    }
-
-    /// Rows of the unrolled input, `c_in·k·k`.
-    fn taps(&self) -> usize {
-        self.c * self.k * self.k
-    }
-
-    fn image(&self) -> usize {
-        self.c * self.h * self.w
-    }
-
-    /// The 1 × 1, stride 1, unpadded case: the image is its own unrolling.
-    fn direct(&self) -> bool {
-        self.k == 1 && self.s == 1 && self.p == 0
-    }
-
-    /// The 3 × 3, stride 1, padding 1 case: three products on a [`border`]ed copy of the
-    /// image, without im2col ([`three_rows`]).
-    fn three(&self) -> bool {
-        self.k == 3 && self.s == 1 && self.p == 1
-    }
-
-    /// The 3 × 3 case of stride 2 and padding 1 with outputs in sixteens on AVX-512: the
-    /// forward and the weight gradient on the direct kernels over the bordered image
-    /// ([`simd::stride2_rows`]), without im2col; the input gradient by phases where the input
-    /// channels come in sixteens as well ([`simd::stride2_input_grad`]).
-    fn stride2(&self) -> bool {
-        self.k == 3 && self.s == 2 && self.p == 1 && simd::covers(self.o)
-    }
-
-    /// Whether the forward borders the image (and keeps it for the weight gradient).
-    fn bordered(&self) -> bool {
-        self.three() || self.stride2()
-    }
-}
-
-/// Output positions `lo..hi` along one axis whose input position `o·s + kx − p` lies inside
-/// `0..len` (`out` positions in all).
-fn inside(kx: usize, s: usize, p: usize, len: usize, out: usize) -> (usize, usize) {
-    let lo = if p > kx { (p - kx).div_ceil(s) } else { 0 };
-    let hi = if len + p > kx {
-        ((len - 1 + p - kx) / s + 1).min(out)
-    } else {
-        0
-    };
-    (lo.min(hi), hi)
-}
-
-/// `col[(ci, ky, kx), (oy, ox)] = x[ci, oy·s + ky − p, ox·s + kx − p]`, zero outside the image.
-fn im2col(g: &Geom, x: &[f32], col: &mut [f32]) {
-    let (k, s, p, wo) = (g.k, g.s, g.p, g.wo);
-    let pix = g.pixels();
-    for ci in 0..g.c {
-        let plane = &x[ci * g.h * g.w..][..g.h * g.w];
-        for ky in 0..k {
-            let (ylo, yhi) = inside(ky, s, p, g.h, g.ho);
-            for kx in 0..k {
-                let (xlo, xhi) = inside(kx, s, p, g.w, wo);
-                let row = &mut col[((ci * k + ky) * k + kx) * pix..][..pix];
-                row[..ylo * wo].fill(0.0);
-                row[yhi * wo..].fill(0.0);
-                for oy in ylo..yhi {
-                    let dst = &mut row[oy * wo..][..wo];
-                    dst[..xlo].fill(0.0);
-                    dst[xhi..].fill(0.0);
-                    if xhi == xlo {
-                        continue;
-                    }
-                    let src = &plane[(oy * s + ky - p) * g.w..][..g.w];
-                    if s == 1 {
-                        let from = xlo + kx - p;
-                        dst[xlo..xhi].copy_from_slice(&src[from..from + xhi - xlo]);
-                    } else {
-                        for (ox, d) in dst[xlo..xhi].iter_mut().enumerate() {
-                            *d = src[(xlo + ox) * s + kx - p];
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// The adjoint of [`im2col`]: every entry of `col` is added into the pixel it was read from.
-fn col2im(g: &Geom, col: &[f32], x: &mut [f32]) {
-    let (k, s, p, wo) = (g.k, g.s, g.p, g.wo);
-    let pix = g.pixels();
-    for ci in 0..g.c {
-        let plane = &mut x[ci * g.h * g.w..][..g.h * g.w];
-        for ky in 0..k {
-            let (ylo, yhi) = inside(ky, s, p, g.h, g.ho);
-            for kx in 0..k {
-                let (xlo, xhi) = inside(kx, s, p, g.w, wo);
-                if xhi == xlo {
-                    continue;
-                }
-                let row = &col[((ci * k + ky) * k + kx) * pix..][..pix];
-                for oy in ylo..yhi {
-                    let src = &row[oy * wo + xlo..oy * wo + xhi];
-                    let dst = &mut plane[(oy * s + ky - p) * g.w..][..g.w];
-                    if s == 1 {
-                        let from = xlo + kx - p;
-                        for (d, v) in dst[from..from + src.len()].iter_mut().zip(src) {
-                            *d += v;
-                        }
-                    } else {
-                        for (ox, v) in src.iter().enumerate() {
-                            dst[(xlo + ox) * s + kx - p] += v;
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// The unrolled image `x_n` as `[k·k·c_in, pixels]`: the image itself for a direct
-/// convolution, else [`im2col`] into `col`.
-fn unrolled<'a>(g: &Geom, x_n: &'a [f32], col: &'a mut Vec<f32>) -> &'a [f32] {
-    if g.direct() {
-        return x_n;
-    }
-    col.resize(g.taps() * g.pixels(), 0.0);
-    im2col(g, x_n, col);
-    col
 }
 
 /// Image `i` of `x` bordered, for the weight gradient of the 3 × 3 and stride-2 paths: as the
@@ -778,9 +603,7 @@ pub(super) fn backward(
         .next()
         .unwrap_or_else(|| (vec![0.0f32; dw_len], vec![0.0f32; db_len]));
     for (pw, pb) in parts {
-        dw.par_chunks_mut(1 << 14)
-            .zip(pw.par_chunks(1 << 14))
-            .for_each(|(a, v)| a.iter_mut().zip(v).for_each(|(a, v)| *a += v));
+        add_into(&mut dw, &pw);
         for (a, v) in db.iter_mut().zip(&pb) {
             *a += v;
         }

@@ -69,6 +69,23 @@ pub(super) fn zeroed(v: &mut [MaybeUninit<f32>]) -> &mut [f32] {
     unsafe { &mut *(v as *mut [MaybeUninit<f32>] as *mut [f32]) }
 }
 
+/// Floats a task of [`map2`] and [`add_into`].
+pub(super) const BLOCK: usize = 1 << 14;
+
+/// `dst_i += src_i`, shared out over the rayon pool in blocks.
+pub(super) fn add_into(dst: &mut [f32], src: &[f32]) {
+    assert_eq!(
+        dst.len(),
+        src.len(),
+        "add_into: {} against {} values",
+        dst.len(),
+        src.len()
+    );
+    dst.par_chunks_mut(BLOCK)
+        .zip(src.par_chunks(BLOCK))
+        .for_each(|(d, s)| d.iter_mut().zip(s).for_each(|(d, s)| *d += s));
+}
+
 /// `out_i = f(a_i, b_i)`, shared out over the rayon pool in blocks.
 pub(super) fn map2(a: &[f32], b: &[f32], f: impl Fn(f32, f32) -> f32 + Sync) -> Vec<f32> {
     assert_eq!(
@@ -78,7 +95,6 @@ pub(super) fn map2(a: &[f32], b: &[f32], f: impl Fn(f32, f32) -> f32 + Sync) -> 
         a.len(),
         b.len()
     );
-    const BLOCK: usize = 1 << 14;
     let mut out = unwritten(a.len());
     out.par_chunks_mut(BLOCK)
         .zip(a.par_chunks(BLOCK).zip(b.par_chunks(BLOCK)))
