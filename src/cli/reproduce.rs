@@ -9,8 +9,8 @@ use crate::train::reproduce::{self, Fid, Protocol, Scale};
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
     /// How big: `cpu` (the default) runs the whole split on 4 of the 12 directions with small
-    /// images and networks, in under two hours on 2 cores (84 min on 2026-11-29: collection
-    /// 14.7, translation 22.1, FID 28.7, the force models 11.6 after it, evaluation 7.3);
+    /// images and networks, in under two hours on 2 cores (47 min on 2026-11-30: collection
+    /// 11.8, translation 5.4, FID 18.8, the force models 6.6 after it, evaluation 4.5);
     /// `paper` runs the full protocol (every trajectory, 320 × 240 frames, ResNet-50) and wants
     /// a GPU (build with `--features vulkan`, or `wgpu` or `gpu`; at the `vulkan` build's speed
     /// measured on an H200 its training would take about 43 h: README, Features); `tiny` is the

@@ -18,8 +18,8 @@ use crate::train::nn::{Depth, GanShape};
 pub enum Scale {
     /// Three indenters and a few trajectories, tiny networks: minutes (the tests).
     Tiny,
-    /// The whole split at a size meant for 2 CPU cores in under two hours (84 min end to end
-    /// on 2 cores on 2026-11-29, 29 of them FID and 22 translation; README, Commands).
+    /// The whole split at a size meant for 2 CPU cores in under two hours (47 min end to end
+    /// on 2 cores on 2026-11-30, 19 of them FID and 5.4 translation; README, Commands).
     Cpu,
     /// The paper's protocol: every trajectory, 320 × 240 frames, ResNet-50 (a GPU machine).
     Paper,
