@@ -149,8 +149,8 @@ impl Backward<Flex, 3> for ConvBackward {
         let (x_d, w_d, dy_d) = (dense(x), dense(&weight), dense(&dy));
         // Few output channels: the gradients on [`deconv`]'s loops where they take them.
         let acc = acc_d.as_deref();
-        let turned = want.dx && deconv::turns(g.s, g.p, g.k, g.o);
-        let few = want.dw && deconv::few_outputs(g.s, g.p, g.k, g.o, g.c);
+        let turned = want.dx && deconv::turns(&g);
+        let few = want.dw && deconv::few_outputs(&g);
         let here = Want {
             dx: want.dx && !turned,
             dw: want.dw && !few,
@@ -158,19 +158,10 @@ impl Backward<Flex, 3> for ConvBackward {
         };
         let mut d = backward(&g, &x_d, kept, &w_d, &dy_d, acc, here);
         if turned {
-            d.dx = Some(deconv::turned_input_grad(
-                shape,
-                g.o,
-                [g.k, g.p],
-                &w_d,
-                &dy_d,
-                acc,
-            ));
+            d.dx = Some(deconv::turned_input_grad(&g, &w_d, &dy_d, acc));
         }
         if few {
-            d.dw = Some(deconv::few_outputs_weight_grad(
-                shape, g.o, g.k, &x_d, &dy_d,
-            ));
+            d.dw = Some(deconv::few_outputs_weight_grad(&g, &x_d, &dy_d));
         }
         if let (Some(node), Some(e)) = (&node_x, earlier) {
             // Not of the input's shape (not expected): back as it was, for `register` to add.

@@ -187,24 +187,22 @@ impl<C: CheckpointStrategy> TrainDeconv for Autodiff<Flex, C> {
 /// terms a sum and fold it back (`col2im`): for the head 1568 × 768 floats an image, written
 /// and read again for 3 terms each, which made its backward the costliest layer of a CycleGAN
 /// step.
-pub(super) fn turns(s: usize, p: usize, k: usize, o: usize) -> bool {
-    s == 1 && o <= 4 && p < k
+pub(super) fn turns(g: &Geom) -> bool {
+    g.s == 1 && g.o <= 4 && g.p < g.k
 }
 
-/// The input gradient of a stride-1 convolution (`[n, c, h, w]` in, `o` channels out, a
+/// The input gradient of a stride-1 convolution `g` (`[n, c, h, w]` in, `o` channels out, a
 /// `k × k` kernel `w` of `[o, c, k, k]`, padding `p`) as a forward convolution of `dy` into `c`
 /// channels by the kernel turned by 180° with its channel axes swapped, padding `k − 1 − p`
 /// (the "full" convolution; Dumoulin and Visin 2016, §4.1): an unrolling of `o·k·k` rows and
 /// `c` outputs a pixel. `acc` (of the input's shape) is added in.
 pub(super) fn turned_input_grad(
-    [n, c, h, w]: [usize; 4],
-    o: usize,
-    [k, p]: [usize; 2],
+    g: &Geom,
     weight: &[f32],
     dy: &[f32],
     acc: Option<&[f32]>,
 ) -> Vec<f32> {
-    let (ho, wo) = (h + 2 * p + 1 - k, w + 2 * p + 1 - k);
+    let (n, c, o, k) = (g.n, g.c, g.o, g.k);
     let mut turned = vec![0.0f32; weight.len()];
     for (ci, kernels) in turned.chunks_mut(o * k * k).enumerate() {
         for (oi, taps) in kernels.chunks_mut(k * k).enumerate() {
@@ -214,8 +212,8 @@ pub(super) fn turned_input_grad(
             }
         }
     }
-    let g = Geom::new([n, o, ho, wo], c, k, 1, k - 1 - p);
-    let (mut dx, _) = forward(&g, dy, &turned, None, false);
+    let full = Geom::new([n, o, g.ho, g.wo], c, k, 1, k - 1 - g.p);
+    let (mut dx, _) = forward(&full, dy, &turned, None, false);
     if let Some(acc) = acc {
         add_into(&mut dx, acc);
     }
@@ -224,8 +222,8 @@ pub(super) fn turned_input_grad(
 
 /// Whether the weight gradient goes through [`few_outputs_weight_grad`]: besides [`turns`],
 /// no padding and input channels in sixteens (the head's 32).
-pub(super) fn few_outputs(s: usize, p: usize, k: usize, o: usize, c: usize) -> bool {
-    turns(s, p, k, o) && p == 0 && c.is_multiple_of(16)
+pub(super) fn few_outputs(g: &Geom) -> bool {
+    turns(g) && g.p == 0 && g.c.is_multiple_of(16)
 }
 
 /// The weight gradient of a stride-1, unpadded convolution with few output channels (see
@@ -234,14 +232,9 @@ pub(super) fn few_outputs(s: usize, p: usize, k: usize, o: usize, c: usize) -> b
 /// path's product `dy · colᵀ` has `o` rows: for the head, three rows against a 1568 × 768
 /// unrolling written for them alone. With the input gradient already turned, the head's
 /// backward at batch 4 took 1.4 ms on that product and 0.6 ms with this sum (2026-11-30).
-pub(super) fn few_outputs_weight_grad(
-    [n, c, h, w]: [usize; 4],
-    o: usize,
-    k: usize,
-    x: &[f32],
-    dy: &[f32],
-) -> Vec<f32> {
-    let (ho, wo, plane) = (h + 1 - k, w + 1 - k, h * w);
+pub(super) fn few_outputs_weight_grad(g: &Geom, x: &[f32], dy: &[f32]) -> Vec<f32> {
+    let (n, c, w, o, k, ho, wo) = (g.n, g.c, g.w, g.o, g.k, g.ho, g.wo);
+    let plane = g.h * w;
     let mut xcl = unwritten(n * c * plane);
     xcl.par_chunks_mut(c * plane)
         .zip(x.par_chunks(c * plane))
@@ -251,9 +244,12 @@ pub(super) fn few_outputs_weight_grad(
     let zeros = vec![0.0f32; ho * wo];
     let images: Vec<(&[f32], [&[f32]; 4])> = (0..n)
         .map(|i| {
-            let planes = std::array::from_fn(|oi| match oi < o {
-                true => &dy[(i * o + oi) * ho * wo..][..ho * wo],
-                false => &zeros[..],
+            let planes = std::array::from_fn(|oi| {
+                if oi < o {
+                    &dy[(i * o + oi) * ho * wo..][..ho * wo]
+                } else {
+                    &zeros[..]
+                }
             });
             (&xcl[i * c * plane..][..c * plane], planes)
         })
