@@ -77,6 +77,19 @@ pub struct SimCameraConfig {
     pub drift_ppm: f64,
     /// Frames buffered for a slow reader before new ones are lost.
     pub queue_len: usize,
+    /// What each frame is sent as: raw pixels, or a JPEG image (a UVC camera's MJPEG stream).
+    pub encoding: SimEncoding,
+}
+
+/// What the simulated camera sends for each frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SimEncoding {
+    /// 8-bit RGB pixels, as rendered.
+    #[default]
+    Raw,
+    /// Each frame one baseline JPEG image (4:2:2 chroma, as UVC cameras send MJPEG) at this
+    /// quality (1..=100), encoded on the render thread: what a GelSight Mini's stream carries.
+    Mjpeg { quality: u8 },
 }
 
 impl Default for SimCameraConfig {
@@ -91,6 +104,7 @@ impl Default for SimCameraConfig {
             device_offset_ns: 1_000_000_000_000,
             drift_ppm: 0.0,
             queue_len: 4,
+            encoding: SimEncoding::Raw,
         }
     }
 }
@@ -102,6 +116,21 @@ impl SimCameraConfig {
             nominal_fps: fps,
             actual_fps: fps,
             ..Self::default()
+        }
+    }
+
+    /// An ideal camera as a rig config's `[camera]` asks for it: its rate, and MJPEG at its
+    /// quality or raw pixels.
+    pub fn for_camera(camera: &rig_core::config::CameraConfig) -> Self {
+        let encoding = match camera.format {
+            rig_core::config::CameraFormat::Mjpeg => SimEncoding::Mjpeg {
+                quality: camera.jpeg_quality,
+            },
+            rig_core::config::CameraFormat::Raw => SimEncoding::Raw,
+        };
+        Self {
+            encoding,
+            ..Self::ideal(camera.fps)
         }
     }
 
@@ -129,6 +158,11 @@ impl SimCameraConfig {
         if self.queue_len == 0 {
             return Err("queue_len must be at least 1".into());
         }
+        if let SimEncoding::Mjpeg { quality } = self.encoding
+            && !(1..=100).contains(&quality)
+        {
+            return Err(format!("JPEG quality {quality} must be in 1..=100"));
+        }
         Ok(())
     }
 
@@ -148,7 +182,62 @@ pub struct SimFrame {
     pub device_ts_ns: u64,
     /// Ground truth: the shared clock's time of the capture, ns.
     pub capture_t_ns: u64,
-    pub image: image::RgbImage,
+    pub payload: SimPayload,
+}
+
+/// A frame's bytes as the camera sends them.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SimPayload {
+    /// The rendered pixels ([`SimEncoding::Raw`]).
+    Rgb(image::RgbImage),
+    /// One JPEG image of `width` × `height` ([`SimEncoding::Mjpeg`]).
+    Jpeg {
+        width: u32,
+        height: u32,
+        bytes: Vec<u8>,
+    },
+}
+
+impl SimPayload {
+    /// Encodes a rendered image as `encoding` asks.
+    pub fn encode(image: image::RgbImage, encoding: SimEncoding) -> Result<Self, String> {
+        match encoding {
+            SimEncoding::Raw => Ok(SimPayload::Rgb(image)),
+            SimEncoding::Mjpeg { quality } => {
+                let (width, height) = image.dimensions();
+                // A UVC frame is at most a few tens of kB: start near that to grow once.
+                let mut bytes = Vec::with_capacity((width * height / 4) as usize);
+                image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, quality)
+                    .encode_image(&image)
+                    .map_err(|e| format!("JPEG encoding of a {width}×{height} frame: {e}"))?;
+                Ok(SimPayload::Jpeg {
+                    width,
+                    height,
+                    bytes,
+                })
+            }
+        }
+    }
+
+    /// Width and height of the frame, pixels.
+    pub fn dimensions(&self) -> (u32, u32) {
+        match self {
+            SimPayload::Rgb(img) => img.dimensions(),
+            SimPayload::Jpeg { width, height, .. } => (*width, *height),
+        }
+    }
+
+    /// The frame as RGB pixels (a JPEG decoded: lossy against the render).
+    pub fn to_rgb(&self) -> Result<image::RgbImage, String> {
+        match self {
+            SimPayload::Rgb(img) => Ok(img.clone()),
+            SimPayload::Jpeg { bytes, .. } => {
+                image::load_from_memory_with_format(bytes, image::ImageFormat::Jpeg)
+                    .map(|i| i.to_rgb8())
+                    .map_err(|e| format!("JPEG frame: {e}"))
+            }
+        }
+    }
 }
 
 /// Counters of a running camera.
@@ -315,7 +404,8 @@ async fn capture_loop(
     let start = (clock.now_ns().div_ceil(period_ns) * period_ns).saturating_sub(period_ns);
     let mut seq = 0u64;
     let mut next_t = capture_time_ns(&config, start, seq);
-    let mut inflight: std::collections::VecDeque<(u64, u64, JoinHandle<Option<image::RgbImage>>)> =
+    type Render = JoinHandle<Option<SimPayload>>;
+    let mut inflight: std::collections::VecDeque<(u64, u64, Render)> =
         std::collections::VecDeque::new();
     loop {
         let capture_due = inflight.len() < parallel;
@@ -325,8 +415,8 @@ async fn capture_loop(
                 if !inflight.is_empty() =>
             {
                 let (fseq, t, _) = inflight.pop_front().expect("checked non-empty");
-                let image = match r {
-                    Ok(Some(img)) => img,
+                let payload = match r {
+                    Ok(Some(p)) => p,
                     _ => {
                         counters.failed.fetch_add(1, Ordering::Relaxed);
                         continue;
@@ -336,7 +426,7 @@ async fn capture_loop(
                     sequence: fseq,
                     device_ts_ns: config.device_ts_ns(t),
                     capture_t_ns: t,
-                    image,
+                    payload,
                 };
                 match tx.try_send(frame) {
                     Ok(()) => {
@@ -363,9 +453,17 @@ async fn capture_loop(
                     counters.stalled.fetch_add(1, Ordering::Relaxed);
                     continue;
                 }
-                // Rendering is CPU work: keep it off the async workers.
+                // Rendering (and the camera's own JPEG encoding) is CPU work: keep it off the
+                // async workers. A frame that cannot be encoded counts as a failed render.
                 let r = renderer.clone();
-                inflight.push_back((this, t, tokio::task::spawn_blocking(move || r.render_at(t))));
+                let encoding = config.encoding;
+                let job = move || {
+                    let img = r.render_at(t)?;
+                    SimPayload::encode(img, encoding)
+                        .map_err(|e| tracing::warn!("simulated camera: {e}"))
+                        .ok()
+                };
+                inflight.push_back((this, t, tokio::task::spawn_blocking(job)));
             }
         }
     }

@@ -91,7 +91,7 @@ fn open_v4l2(
     let src = v4l2::device::open(
         device,
         clock.clone(),
-        &v4l2::Request::new(c.width_px, c.height_px, c.fps),
+        &v4l2::Request::for_camera(c),
         &v4l2::V4l2Options::default(),
     )?;
     Ok(Box::new(src))

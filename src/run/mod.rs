@@ -49,6 +49,11 @@
 //! pending, complete or failed (with the reason). A failed trajectory's partial file is
 //! removed. `--resume` skips complete trajectories and redoes the rest.
 //!
+//! The disk space is budgeted ([`budget`]): a run whose estimate (frames × the sensor's
+//! measured bytes per frame, plus the other channels) the output's file system cannot hold is
+//! refused before anything connects, and a trajectory that no longer fits is not started: the
+//! run stops there as after any stop, the rest pending for `--resume`.
+//!
 //! Each trajectory's TCP path is also compared with the planned straight lines, and the largest
 //! deviation and depth overshoot are reported.
 //!
@@ -57,8 +62,11 @@
 //! [`run`] below tells the story; the chapters are [`options`] (what was asked, checked against
 //! the plan), [`output`] (the output directory and `--resume`), [`devices`] (the rig, its
 //! clock, the recorder and the robot), [`pipeline`] (streams, collector, governor, injector),
-//! [`trajectory`] (one trajectory, its failure and the recovery) and [`summary`] (the report).
+//! [`trajectory`] (one trajectory, its failure and the recovery), [`budget`] (the disk space
+//! it needs, checked before anything connects and before each trajectory) and [`summary`]
+//! (the report).
 
+pub mod budget;
 pub mod collector;
 mod devices;
 mod options;
@@ -121,6 +129,16 @@ pub async fn run(
         return Ok(summary);
     };
     let home = first.stages[0].waypoints[0];
+    // Nor before the disk is known to hold what is still to record (a lab camera's frames are
+    // measured once it streams, below).
+    let mut disk = budget::preflight(
+        config,
+        &plan,
+        indenter,
+        planned,
+        &output.complete,
+        &opts.out,
+    )?;
 
     // The rig, the recorder (before the robot: a run that cannot reach the robot is continued
     // with --resume), the robot, and the tasks around the motion.
@@ -169,10 +187,32 @@ pub async fn run(
     // then clears the gel and checks its transit before it moves).
     trajectory::check_start(&robot, config)?;
 
-    // The trajectories, one after the other.
+    // A lab camera's frames are measured before the first motion: the first trajectory's
+    // disk check counts what the camera really sends.
+    if disk.frame.basis == budget::FrameBasis::FormatBound {
+        budget::await_frames(
+            pipeline.streams.counters(),
+            &clock,
+            5,
+            Duration::from_secs_f64(3.0 * speed),
+        )
+        .await;
+    }
+
+    // The trajectories, one after the other, each only when the disk holds it.
     let t0 = clock.now_ns();
     let mut attempted = 0usize;
-    for t in &todo {
+    for (k, t) in todo.iter().enumerate() {
+        let (n, bytes) = pipeline.streams.counters().stored_frame_sizes();
+        disk.refine(n, bytes);
+        if let Err(why) =
+            budget::check_before(&disk, &todo[k..], &opts.out, summary.trajectories.len())
+        {
+            bar.suspend(|| eprintln!("{why}"));
+            summary.failure = Some((t.id.clone(), why.clone()));
+            summary.stopped = Some(why);
+            break;
+        }
         attempted += 1;
         match trajectory::record(&mut robot, &ctx, t).await {
             Ok(outcome) => {
@@ -222,6 +262,7 @@ pub async fn run(
     if let Some(s) = sim {
         summary.sim_tapes = s.shutdown().await;
     }
+    summary.disk = budget::DiskUse::of(&opts.out, &disk);
     summary.wall_time_s = wall0.elapsed().as_secs_f64();
     // The arm is left above the gel: every trajectory ends its Up stage at approach height.
     Ok(summary)

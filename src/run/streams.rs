@@ -138,6 +138,10 @@ pub struct StreamCounters {
     pub frames_dropped: AtomicU64,
     /// Frames that could not be converted or encoded (counted, not recorded).
     pub frames_unencodable: AtomicU64,
+    /// Frames encoded as they are stored ([`stored_image`]), and their bytes in all: the
+    /// disk budget's measure of the camera's frames ([`super::budget`]).
+    pub stored_frames: AtomicU64,
+    pub stored_frame_bytes: AtomicU64,
     /// Times a stream found the collector's input full and waited.
     pub backpressure_waits: AtomicU64,
     /// Capture stamp of the newest frame handed to the collector, ns (0: none yet).
@@ -176,6 +180,14 @@ impl StreamCounters {
     }
     pub fn recording_lost(&self) -> u64 {
         Self::get(&self.recording_lost)
+    }
+    pub fn stored_frames(&self) -> u64 {
+        Self::get(&self.stored_frames)
+    }
+    /// Frames stored so far and their bytes, read together (the bytes are counted first).
+    pub fn stored_frame_sizes(&self) -> (u64, u64) {
+        let n = self.stored_frames.load(Ordering::Acquire);
+        (n, Self::get(&self.stored_frame_bytes))
     }
     pub(super) fn force_limit_armed_untared(&self) -> bool {
         self.force_limit_untared.load(Ordering::Acquire)
@@ -498,6 +510,10 @@ fn encoder_thread(
                 continue;
             }
         };
+        counters
+            .stored_frame_bytes
+            .fetch_add(data.len() as u64, Ordering::Relaxed);
+        counters.stored_frames.fetch_add(1, Ordering::Release);
         let stamp_ns = frame.capture_t_ns.unwrap_or(frame.device_ts_ns);
         let ev = Event::Frame(Box::new(EncodedFrame {
             seq: frame.sequence,

@@ -79,6 +79,8 @@ pub struct RunSummary {
     pub safety_stops: Vec<super::safety::SafetyStop>,
     /// Every retract along the surface normal: label, from, to.
     pub retracts: Vec<Retract>,
+    /// What the output directory holds at the end of the run, against the disk budget.
+    pub disk: Option<super::budget::DiskUse>,
 }
 
 /// A retract along the surface normal to the approach height.
@@ -234,6 +236,9 @@ impl RunSummary {
             ));
         }
         s.push_str(&format!("output: {}\n", self.out.display()));
+        if let Some(d) = &self.disk {
+            s.push_str(&d.line());
+        }
         for (id, why) in &self.failed {
             s.push_str(&format!("failed: trajectory {id}: {why}\n"));
         }

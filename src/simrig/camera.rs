@@ -2,7 +2,8 @@
 //!
 //! `hardware_mocks::camera::SimCamera` renders frames at its (imperfect) rate on the shared
 //! clock; this adapter stamps them with the rig's receive time, counts sequence gaps and hands
-//! them out as RGB frames. Each frame keeps the camera's own device timestamp
+//! them out as the camera sent them: MJPEG frames (a GelSight Mini's stream, `[camera] format =
+//! "mjpeg"`) or RGB pixels (`"raw"`). Each frame keeps the camera's own device timestamp
 //! (`device_ts_ns`; `capture_t_ns` is `None`). In `rig run` the simulated camera's device clock
 //! is the shared clock itself (offset 0, [`super::start`]), as a UVC camera's buffer stamps are
 //! the host's CLOCK_MONOTONIC, so the run pairs frames with the stamp taken as host time
@@ -12,7 +13,7 @@
 //! frame was really captured and, when a truth source is attached ([`SimFrameSource::with_truth`]),
 //! the true contact wrench at that instant. The lab's [`FrameSource`] trait knows nothing of it.
 
-use hardware_mocks::camera::SimCamera;
+use hardware_mocks::camera::{SimCamera, SimEncoding, SimPayload};
 use hardware_mocks::truth::SharedWrenchSource;
 use rig_core::clock::Clock;
 
@@ -35,11 +36,15 @@ impl SimFrameSource {
     /// Wraps a camera rendering `width` × `height` images.
     pub fn new(camera: SimCamera, clock: Clock, width: u32, height: u32) -> Self {
         let fps = camera.config().nominal_fps;
+        let pixel = match camera.config().encoding {
+            SimEncoding::Raw => PixelFormat::Rgb8,
+            SimEncoding::Mjpeg { .. } => PixelFormat::Mjpeg,
+        };
         Self {
             camera,
             clock,
             format: FrameFormat {
-                pixel: PixelFormat::Rgb8,
+                pixel,
                 width,
                 height,
                 fps,
@@ -67,6 +72,41 @@ impl SimFrameSource {
     }
 }
 
+/// A frame's pixel format and bytes as the simulated camera sends them.
+fn parts(payload: SimPayload) -> (PixelFormat, Vec<u8>) {
+    match payload {
+        SimPayload::Rgb(img) => (PixelFormat::Rgb8, img.into_raw()),
+        SimPayload::Jpeg { bytes, .. } => (PixelFormat::Mjpeg, bytes),
+    }
+}
+
+/// `image` as the simulated camera of `camera` would hand it to a run (its format: MJPEG at
+/// its quality, or raw pixels), for what needs a frame's real bytes without a running camera
+/// (the disk budget's measured frame).
+pub fn frame_as_sent(
+    camera: &rig_core::config::CameraConfig,
+    image: image::RgbImage,
+) -> Result<Frame, String> {
+    let (width, height) = image.dimensions();
+    let encoding = hardware_mocks::camera::SimCameraConfig::for_camera(camera).encoding;
+    let (pixel, data) = parts(SimPayload::encode(image, encoding)?);
+    Ok(Frame {
+        sequence: 0,
+        device_ts_ns: 0,
+        capture_t_ns: None,
+        received_t_ns: 0,
+        dropped_before: 0,
+        format: FrameFormat {
+            pixel,
+            width,
+            height,
+            fps: camera.fps,
+        },
+        data,
+        truth: None,
+    })
+}
+
 impl FrameSource for SimFrameSource {
     fn format(&self) -> FrameFormat {
         self.format
@@ -82,7 +122,8 @@ impl FrameSource for SimFrameSource {
                 capture_t_ns: f.capture_t_ns,
                 wrench: src.wrench_at(f.capture_t_ns),
             });
-            let (width, height) = f.image.dimensions();
+            let (width, height) = f.payload.dimensions();
+            let (pixel, data) = parts(f.payload);
             Ok(Frame {
                 sequence: f.sequence,
                 device_ts_ns: f.device_ts_ns,
@@ -90,11 +131,12 @@ impl FrameSource for SimFrameSource {
                 received_t_ns,
                 dropped_before,
                 format: FrameFormat {
+                    pixel,
                     width,
                     height,
                     ..self.format
                 },
-                data: f.image.into_raw(),
+                data,
                 truth,
             })
         })

@@ -43,7 +43,7 @@ use crate::force::{self, FrontEndSettings, FtStream};
 use crate::plan::StageName;
 use crate::robot::RobotEndpoints;
 
-pub use camera::SimFrameSource;
+pub use camera::{SimFrameSource, frame_as_sent};
 pub use faults::{SimFault, SimFaultKind};
 pub use ft::open_ft;
 pub use governor::govern;
@@ -163,7 +163,7 @@ pub async fn start(
     let camera = config.camera.as_ref().map(|c| SimCameraConfig {
         device_offset_ns: 0,
         queue_len: buffers,
-        ..SimCameraConfig::ideal(c.fps)
+        ..SimCameraConfig::for_camera(c)
     });
     let sim_opts = SimRigOptions {
         home_pose: Some(opts.home),

@@ -234,17 +234,25 @@ pub(super) fn collect(
 /// would overwrite each other), and every finished recording is announced on one line. `true`
 /// when anything was recorded. When one recording fails, the other workers stop after their
 /// current one (what they recorded is kept, and a rerun resumes it).
+///
+/// Before anything is recorded, the disk budget of every recording still to do is summed and
+/// refused when the disk cannot hold it ([`crate::run::budget::check_collection`]; `command`
+/// names the command in the message, `smaller` says how to ask it for less).
 pub(super) fn collect_parallel<S: AsRef<str> + Sync>(
     sensors: &[(&RigConfig, &Path)],
     indenters: &[S],
     workers: usize,
     progress: bool,
+    (command, smaller): (&str, Option<&str>),
 ) -> anyhow::Result<bool> {
     use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
     let jobs: Vec<(&RigConfig, &Path, &str)> = indenters
         .iter()
         .flat_map(|i| sensors.iter().map(move |(c, d)| (*c, *d, i.as_ref())))
         .collect();
+    let runs: Vec<(&RigConfig, PathBuf, &str)> =
+        jobs.iter().map(|&(c, d, i)| (c, d.join(i), i)).collect();
+    crate::run::budget::check_collection(&runs, command, smaller)?;
     let (failed, next, finished) = (
         AtomicBool::new(false),
         AtomicUsize::new(0),
@@ -344,6 +352,10 @@ pub fn run(
         // stream check failed with four recordings at a time).
         2,
         progress,
+        (
+            "rig demo",
+            (!quick).then_some("run the smaller `rig demo --quick`"),
+        ),
     )?;
     eprintln!("      done in {:.0} s", t0.elapsed().as_secs_f64());
 

@@ -150,3 +150,65 @@ fn bad_camera_settings_are_refused() {
         .is_err()
     );
 }
+
+/// A textured frame (a smooth gradient with printed dots), like a gel image, so JPEG's error
+/// bound is the one it has on real content.
+fn gel_like(_t_ns: u64) -> Option<image::RgbImage> {
+    Some(image::RgbImage::from_fn(64, 48, |x, y| {
+        let dot = (x % 8 == 3 || x % 8 == 4) && (y % 8 == 3 || y % 8 == 4);
+        if dot {
+            image::Rgb([15, 15, 18])
+        } else {
+            image::Rgb([110 + (x as u8) / 2, 100 + (y as u8), 130])
+        }
+    }))
+}
+
+#[tokio::test]
+async fn an_mjpeg_camera_sends_jpeg_frames_that_are_recorded_byte_for_byte() {
+    use hardware_mocks::camera::SimEncoding;
+    let (clock, handle) = Clock::manual();
+    let config = SimCameraConfig {
+        encoding: SimEncoding::Mjpeg { quality: 90 },
+        ..SimCameraConfig::ideal(25.0)
+    };
+    let cam = SimCamera::spawn(clock.clone(), config, Arc::new(gel_like)).unwrap();
+    let mut src = SimFrameSource::new(cam, clock.clone(), 64, 48);
+    assert_eq!(src.format().pixel, PixelFormat::Mjpeg);
+    let f = step_until_frame(&mut src, &handle).await;
+    assert_eq!(f.format.pixel, PixelFormat::Mjpeg);
+    // A JPEG: SOI marker first, EOI last, and far fewer bytes than the pixels.
+    assert_eq!(&f.data[..3], &[0xff, 0xd8, 0xff]);
+    assert_eq!(&f.data[f.data.len() - 2..], &[0xff, 0xd9]);
+    assert!(f.data.len() < 64 * 48 * 3 / 2, "{} bytes", f.data.len());
+    // It decodes to the rendered image within JPEG's loss at quality 90: a few levels on
+    // average (4:2:2 chroma halves the colour resolution, so the dots' edges carry the most).
+    let want = gel_like(0).unwrap();
+    let got = f.to_rgb().unwrap();
+    let n = want.as_raw().len() as f64;
+    let mae: f64 = want
+        .as_raw()
+        .iter()
+        .zip(got.as_raw())
+        .map(|(a, b)| f64::from(a.abs_diff(*b)))
+        .sum::<f64>()
+        / n;
+    assert!(mae > 0.0 && mae < 4.0, "mean error {mae} levels");
+    // The recorder keeps the camera's bytes untouched.
+    let (format, stored) = rig::run::streams::stored_image(&f).unwrap();
+    assert_eq!(format, rig::record::ImageFormat::Jpeg);
+    assert_eq!(stored, f.data);
+}
+
+#[test]
+fn a_jpeg_quality_outside_1_to_100_is_refused() {
+    use hardware_mocks::camera::SimEncoding;
+    for quality in [0, 101] {
+        let bad = SimCameraConfig {
+            encoding: SimEncoding::Mjpeg { quality },
+            ..SimCameraConfig::default()
+        };
+        let err = bad.validate().unwrap_err();
+        assert!(err.contains(&format!("JPEG quality {quality}")), "{err}");
+    }
+}

@@ -232,20 +232,24 @@ fn a_full_disk_fails_the_trajectory_and_keeps_the_completed_ones() {
     let copy = tmp.path().join("copy");
     let rc = tmp.path().join("rc");
     let log = tmp.path().join("log");
-    // The disk holds the first trajectory and half the second: its size is measured on a run
-    // of the first alone (it depends on what the frames show). The tmpfs lives only in the
-    // namespace, so the result is copied out before it ends.
-    let probe_dir = tmp.path().join("probe");
-    let probe = rig_run(&cfg, &probe_dir, 1, &[]);
-    assert!(probe.status.success(), "{}", text(&probe));
-    let one = std::fs::metadata(probe_dir.join(final_name(T1)))
-        .unwrap()
-        .len();
-    let size_kib = (one * 3 / 2).div_ceil(1024) + 64;
+    // The disk holds the whole run when it starts (the run's disk budget refuses one that does
+    // not, and stops before a trajectory that no longer fits): another process fills it once
+    // the second trajectory is under way, leaving 256 KiB, so that trajectory's own writes
+    // run into the full disk. The tmpfs lives only in the namespace, so the result is copied
+    // out before it ends.
+    let config = rig_core::config::RigConfig::load(&cfg).unwrap();
+    let indenter = rig_core::indenter::Indenter::builtin("cone").unwrap();
+    let plan = rig::plan::Plan::build(&config, &indenter).unwrap();
+    let budget = rig::run::budget::Budget::for_run(&config, &plan, &indenter);
+    let need = budget.trajectories(&plan.trajectories[..3]).required();
+    let size = (need + (4 << 20)).div_ceil(4096) * 4096;
     let script = format!(
-        "mount -t tmpfs -o size={size_kib}k tmpfs {mnt} && \
-         {rig} run --indenter cone --config {cfg} --out {mnt}/run --limit 3 > {log} 2>&1; \
-         echo $? > {rc}; cp -a {mnt}/run {copy}",
+        "mount -t tmpfs -o size={size} tmpfs {mnt} || exit 1; \
+         {rig} run --indenter cone --config {cfg} --out {mnt}/run --limit 3 > {log} 2>&1 & pid=$!; \
+         while [ ! -e {mnt}/run/.{T2}.mcap.partial ] && kill -0 $pid 2>/dev/null; do sleep 0.01; done; \
+         avail=$(df -B1 --output=avail {mnt} | tail -n 1); \
+         head -c $((avail - 262144)) /dev/zero > {mnt}/filler; \
+         wait $pid; echo $? > {rc}; cp -a {mnt}/run {copy}",
         mnt = mnt.display(),
         rig = env!("CARGO_BIN_EXE_rig"),
         cfg = cfg.display(),

@@ -17,6 +17,7 @@ mod camera_v4l2;
 mod contact_cache;
 mod dataset_check;
 mod demo;
+mod disk_budget;
 mod fault_drills;
 mod ft_daq;
 mod ft_netft;

@@ -19,8 +19,8 @@
 //! # Geometry
 //!
 //! The TCP is the indenter tip (see `rig_core::config`, "TCP at contact"). What presses is the
-//! **physical** tip, `pose_trans(flange, tool_offset)` ([`Ur5e::tip_pose_at`], with the UR5e's
-//! [`Ur5eConfig::tool_offset`], identity by default), not the TCP the controller reports: a
+//! **physical** tip, `pose_trans(flange, tool_offset)` ([`Ur5e::tip_pose_moving`], with the
+//! UR5e's [`Ur5eConfig::tool_offset`], identity by default), not the TCP the controller reports: a
 //! program whose `set_tcp` does not match the tool presses with the wrong point, as a real rig
 //! would. The tip's pose is expressed
 //! in the sensor surface frame, `p = pose_trans(pose_inv(surface_frame), tcp)`; then
@@ -62,9 +62,10 @@
 //!
 //! With [`PhysicsConfig::on_demand`] (the default), a frame asked for at a time past the
 //! newest physics step first steps the physics through the grid ticks up to that time, and at
-//! that time itself if it is off the grid, at the poses the controller had then
-//! ([`Ur5e::tip_pose_at`]). A frame thus shows the contact of its own capture time however late
-//! its task ran ([`PhysicsStats::max_field_age_ns`] says how stale the images were).
+//! that time itself if it is off the grid, at the poses the arm had then
+//! ([`Ur5e::tip_pose_moving`]: between ticks, where the arm is on its way). A frame thus shows
+//! the contact of its own capture time however late its task ran
+//! ([`PhysicsStats::max_field_age_ns`] says how stale the images were).
 //!
 //! The F/T twins sample at 1 kHz, twenty times per step, so they read the wrench between steps
 //! without solving: the pose of the sample is read off the line through the last two steps'
@@ -155,13 +156,11 @@ impl Default for SimRigOptions {
 }
 
 impl SimRigOptions {
-    /// Defaults, with an ideal camera at `camera.fps` when the config has a camera.
+    /// Defaults, with an ideal camera at `camera.fps`, sending `camera.format`, when the config
+    /// has a camera.
     pub fn for_config(config: &RigConfig) -> Self {
         Self {
-            camera: config
-                .camera
-                .as_ref()
-                .map(|c| SimCameraConfig::ideal(c.fps)),
+            camera: config.camera.as_ref().map(SimCameraConfig::for_camera),
             ..Self::default()
         }
     }
@@ -294,9 +293,13 @@ impl SimRig {
         let src = ur5e.clone();
         let physics_task = AbortOnDrop(Some(physics.spawn(
             clock.clone(),
-            // The pose the controller had at the time asked for (due ticks processed first),
-            // so a step, on time or late, sees the contact of its own instant.
-            Arc::new(move |t_ns| src.tip_pose_at(t_ns).unwrap_or_else(|| src.tip_pose_now())),
+            // Where the tip was at the time asked for (due ticks processed first; between
+            // the controller's ticks, on its way), so a step, on time or late, sees the
+            // contact of its own instant.
+            Arc::new(move |t_ns| {
+                src.tip_pose_moving(t_ns)
+                    .unwrap_or_else(|| src.tip_pose_now())
+            }),
         )));
 
         let fs = config.force_sensor.as_ref();

@@ -7,23 +7,22 @@
 //! # Known limits of the F/T labels
 //!
 //! A frame's true wrench and the F/T's samples come from the same steps, but not always the
-//! same ones, so `rig dataset check` sees the difference. On the cone's default plan it is
-//! within the Nano17's noise (0.03 N); on the large flat indenters' full plans it reaches
-//! 0.13–0.54 N (wave 0.54, paralines 0.42, triangle 0.36, dotin 0.34, cylinder 0.32, pacman
-//! 0.29, hexagon 0.29, moon 0.26, cylinder_si 0.20, torus 0.13 N).
-//! Two causes are known:
+//! same ones, so `rig dataset check` sees the difference. Two causes were closed:
 //!
-//! - **The UR5e twin's pose is held between its 2 ms control ticks**
-//!   ([`Ur5e::tip_pose_at`](crate::ur5e::Ur5e::tip_pose_at) gives the last tick's), so a
-//!   frame's step is the contact of up to 2 ms before its capture while F/T samples partly
-//!   read later steps: at `--speed-factor 1` the paired force leads the truth by about 0.8 ms,
-//!   0.1 N while a flat face lifts off. Interpolating the pose between ticks removes the lead,
-//!   but then every frame adds a step at its own instant, which more than doubled the cone's
-//!   run time (the read-ahead's line through two close steps asks for a solve per sample).
-//! - **A contact step depends on its length** (see `sim/contact`: the contact search lags the
-//!   friction solve, and iterating the two does not converge), and frames, physics ticks and
-//!   the F/T's off-line solves interleave at irregular times: Fz jitters by tenths of a newton
-//!   at the ends of slides.
+//! - the contact is pressed with the tip where it is at the sample's own instant, between
+//!   the controller's 2 ms ticks ([`Ur5e::tip_pose_moving`](crate::ur5e::Ur5e::tip_pose_moving)),
+//!   not the last tick's pose, which put the F/T up to a tick behind the frames;
+//! - the F/T reads the wrench off the motion's line at most `MAX_LINE_MM` (5 µm, in
+//!   `read_ahead.rs`) past the newest step, and solves
+//!   beyond it: at the up stage's 5 mm/s two physics steps are 200 µm apart, and the linear
+//!   reading over that span was 0.5 N off where a flat face lifts off.
+//!
+//! With both, the largest error over the first 48 trajectories (the centre point) of the wave,
+//! cylinder and cone plans is 0.03–0.06 N, at the Nano17's noise (`docs/experiments.md`,
+//! "Labels"). One cause is still open: **a contact step depends on its length** (see
+//! `sim/contact`: the contact search lags the friction solve, and iterating the two does not
+//! converge), so where the whole gel slides (paralines in its reverse stage) Fz still differs
+//! by up to 0.14 N.
 
 use std::collections::VecDeque;
 use std::io;

@@ -37,6 +37,11 @@ const OFF_LINE_MM: f64 = 1e-4;
 /// off their line: the error of that linear reading grows with the distance, and the solver's
 /// own noise in the difference of the two steps is multiplied by it.
 pub(super) const MAX_LINE_STEPS: f64 = 2.0;
+/// How far past the newest step (mm of travel) a pose may be read off the line at most,
+/// whatever the steps' spacing: the linear reading's error grows with the square of it.
+pub(super) const MAX_LINE_MM: f64 = 0.005;
+/// The least length of the line's baseline (mm), where the steps allow it.
+const MIN_BASE_MM: f64 = MAX_LINE_MM / 2.0;
 
 /// What `ContactPhysics::read_ahead` can say about a time past the newest step.
 pub(super) enum Ahead {
@@ -114,9 +119,23 @@ pub(super) fn read_off_line(ring: &VecDeque<Sample>, t_ns: u64, at: &[f64; 3]) -
         // after a cylinder's touch).
         return Ahead::Solve;
     }
+    // The line's baseline: the latest earlier step in contact at least MIN_BASE_MM back. Two
+    // steps microseconds apart (a frame's and an F/T sample's) give a line whose direction is
+    // mostly rounding, and a reach of MAX_LINE_STEPS of their spacing is no reach at all.
+    let (s0, d) = ring
+        .iter()
+        .rev()
+        .skip(1)
+        .map(|s| (s, sub(&s1.at_mm, &s.at_mm)))
+        .find(|(_, d)| dot(d, d).sqrt() >= MIN_BASE_MM)
+        .filter(|(s, _)| s.at_mm[2] > 0.0)
+        .unwrap_or((s0, d));
     let s = dot(&v, &d) / dot(&d, &d);
     let off: [f64; 3] = std::array::from_fn(|k| v[k] - s * d[k]);
-    if !(0.0..=MAX_LINE_STEPS).contains(&s) || dot(&off, &off).sqrt() > OFF_LINE_MM {
+    if !(0.0..=MAX_LINE_STEPS).contains(&s)
+        || dot(&off, &off).sqrt() > OFF_LINE_MM
+        || s * dot(&d, &d).sqrt() > MAX_LINE_MM
+    {
         return Ahead::Solve;
     }
     Ahead::Wrench(along(&s0.w, &s1.w, 1.0 + s))
@@ -155,9 +174,9 @@ mod tests {
     #[test]
     fn a_pose_on_the_line_is_read_off_it_at_its_own_distance() {
         let ring = pressing();
-        // 10 µm further down (a slower ramp than the steps' 2 mm/s): a quarter of a step on.
-        let f = fz(read_off_line(&ring, 30_000_000, &[1.0, 2.0, 0.45])).unwrap();
-        assert!((f + 1.25).abs() < 1e-12, "{f}");
+        // 4 µm further down (a slower ramp than the steps' 2 mm/s): a tenth of a step on.
+        let f = fz(read_off_line(&ring, 30_000_000, &[1.0, 2.0, 0.444])).unwrap();
+        assert!((f + 1.22).abs() < 1e-12, "{f}");
         // The same pose as the newest step, later (between controller ticks): its wrench.
         let f = fz(read_off_line(&ring, 21_000_000, &[1.0, 2.0, 0.44])).unwrap();
         assert_eq!(f, -1.2);
@@ -218,6 +237,37 @@ mod tests {
     }
 
     #[test]
+    fn a_reading_reaches_at_most_max_line_mm_past_the_newest_step() {
+        // Lifting at 5 mm/s, steps 100 µm apart: 4 µm on is read off the line, 6 µm is not,
+        // though both are well within two step spacings.
+        let ring = VecDeque::from(vec![
+            sample(0, -5.0, [0.0, 0.0, 0.60]),
+            sample(20, -3.4, [0.0, 0.0, 0.50]),
+        ]);
+        let f = fz(read_off_line(&ring, 21_000_000, &[0.0, 0.0, 0.496])).unwrap();
+        assert!((f + 3.336).abs() < 1e-12, "{f}");
+        assert!(matches!(
+            read_off_line(&ring, 21_000_000, &[0.0, 0.0, 0.494]),
+            Ahead::Solve
+        ));
+    }
+
+    #[test]
+    fn the_line_runs_through_a_step_far_enough_back() {
+        // A frame's step 0.2 µm after an F/T sample's: their own line is all rounding, so the
+        // line runs from the step 40 µm back, and a pose 4 µm on is read off it.
+        let ring = VecDeque::from(vec![
+            sample(0, -1.0, [1.0, 2.0, 0.4000]),
+            sample(19, -1.2, [1.0, 2.0, 0.4400]),
+            sample(20, -1.201, [1.0, 2.0, 0.4402]),
+        ]);
+        let f = fz(read_off_line(&ring, 21_000_000, &[1.0, 2.0, 0.4442])).unwrap();
+        // Along the 40.2 µm line from −1.0 N to −1.201 N, 4 µm past its end.
+        let want = -1.201 - 0.201 * 4.0 / 40.2;
+        assert!((f - want).abs() < 1e-9, "{f} against {want}");
+    }
+
+    #[test]
     fn out_of_contact_is_zero_and_a_covered_time_is_the_buffers() {
         let ring = pressing();
         assert_eq!(
@@ -232,13 +282,13 @@ mod tests {
 
     #[test]
     fn an_unloading_read_off_the_line_stops_at_zero() {
-        // Lifting: −0.2 N then −0.05 N 40 µm higher; 60 µm higher still is past lift-off.
+        // Lifting: −0.2 N then −0.05 N 4 µm higher; 3.5 µm higher still is past lift-off.
         let ring = VecDeque::from(vec![
-            sample(0, -0.2, [0.0, 0.0, 0.10]),
-            sample(20, -0.05, [0.0, 0.0, 0.06]),
+            sample(0, -0.2, [0.0, 0.0, 0.1000]),
+            sample(20, -0.05, [0.0, 0.0, 0.0960]),
         ]);
         assert_eq!(
-            fz(read_off_line(&ring, 30_000_000, &[0.0, 0.0, 0.03])),
+            fz(read_off_line(&ring, 21_000_000, &[0.0, 0.0, 0.0925])),
             Some(0.0)
         );
     }

@@ -335,6 +335,29 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
         assert_eq!(rig.ur5e().tcp_pose_at(t), Some((t, pose)));
         assert_eq!(rig.ur5e().tcp_pose_at(t + 1_000_000), Some((t, pose)));
     }
+    // What the contact presses with: the tip on its way between two ticks (the tool is the
+    // TCP here), at the time asked for, a quarter of the way from one tick's position to the
+    // next; at a tick, that tick's pose.
+    for w in path.windows(2).step_by(25) {
+        let ((ta, a), (tb, b)) = (w[0], w[1]);
+        let t = ta + (tb - ta) / 4;
+        let (t_got, got) = rig.ur5e().tip_pose_moving(t).unwrap();
+        assert_eq!(t_got, t);
+        let want = [
+            a.x + 0.25 * (b.x - a.x),
+            a.y + 0.25 * (b.y - a.y),
+            a.z + 0.25 * (b.z - a.z),
+        ];
+        for (g, w) in [got.x, got.y, got.z].into_iter().zip(want) {
+            assert!((g - w).abs() < 1e-12, "{g} against {w}");
+        }
+        assert_eq!(rig.ur5e().tip_pose_moving(ta), Some((ta, a)));
+    }
+    // Moving, a quarter of a tick between them is real travel (10 mm/s: 5 µm a tick).
+    let (ta, a) = path[path.len() / 2];
+    let (tb, b) = path[path.len() / 2 + 1];
+    let mid = rig.ur5e().tip_pose_moving((ta + tb) / 2).unwrap().1;
+    assert!((a.z - b.z).abs() > 1e-6 && (mid.z - a.z).abs() > 0.4 * (a.z - b.z).abs());
 
     // At rest 0.5 mm deep: settle 40 ms, then read 0.2 s. The F/T reads the newest physics
     // step at each sample's time, so let the physics reach the rest pose first: on a busy
@@ -398,11 +421,14 @@ async fn the_ur5e_presses_a_sphere_and_the_netft_reads_the_contact_force() {
     }
     let last = last.unwrap();
     assert!(last.capture_t_ns > t_rest - 200_000_000);
-    let diff: u64 = flat_frame
-        .image
+    let (flat, pressed) = (
+        flat_frame.payload.to_rgb().unwrap(),
+        last.payload.to_rgb().unwrap(),
+    );
+    let diff: u64 = flat
         .as_raw()
         .iter()
-        .zip(last.image.as_raw())
+        .zip(pressed.as_raw())
         .map(|(a, b)| u64::from(a.abs_diff(*b)))
         .sum();
     assert!(diff > 1000, "the pressed frame looks flat (diff {diff})");

@@ -442,6 +442,35 @@ pub struct CameraConfig {
     /// Requested frame rate, Hz.
     #[serde(default = "default_fps")]
     pub fps: f64,
+    /// What the camera sends: `"mjpeg"` (each frame one JPEG, as a GelSight Mini's UVC stream;
+    /// recorded byte for byte) or `"raw"` (pixels, recorded as lossless PNG). A V4L2 camera
+    /// is asked for this format first and falls back to the other.
+    #[serde(default)]
+    pub format: CameraFormat,
+    /// JPEG quality (1–100) of the simulated camera's MJPEG frames. A real camera's MJPEG
+    /// quality is set by its firmware, so `v4l2` cameras ignore it.
+    #[serde(default = "default_jpeg_quality")]
+    pub jpeg_quality: u8,
+}
+
+/// `[camera] format`: what each frame's bytes are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CameraFormat {
+    /// Motion-JPEG: one JPEG image per frame (what UVC tactile cameras stream).
+    #[default]
+    Mjpeg,
+    /// Uncompressed pixels (RGB or YUYV), stored as lossless PNG.
+    Raw,
+}
+
+/// The simulated camera's default JPEG quality (IJG scale). No figure for a GelSight Mini's
+/// firmware encoder is published, so it is chosen by measurement (`docs/experiments.md`,
+/// "MJPEG frames"): on pressed 320 × 240 frames of the shipped sensors, 90 gives 18–27 kB a
+/// frame (PNG: 100–116 kB) at an RMS error of 2.5–3.5 levels, against markers and shading
+/// that differ from the gel by tens of levels; 95 would cost 1.5× the bytes.
+pub fn default_jpeg_quality() -> u8 {
+    90
 }
 
 fn default_width_px() -> u32 {

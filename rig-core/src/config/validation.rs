@@ -390,6 +390,12 @@ impl RigConfig {
             if cam.height_px == 0 {
                 v.push("camera.height_px", "must be positive");
             }
+            if !(1..=100).contains(&cam.jpeg_quality) {
+                v.push(
+                    "camera.jpeg_quality",
+                    format!("{} is outside 1..=100", cam.jpeg_quality),
+                );
+            }
             if v.positive("camera.fps", cam.fps) && !(MIN_FPS..=MAX_FPS).contains(&cam.fps) {
                 v.push(
                     "camera.fps",

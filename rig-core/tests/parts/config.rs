@@ -285,6 +285,28 @@ fn speeds_are_limited() {
     assert_eq!(e.keys(), vec!["plan.up.speed_mm_s".to_string()], "{e}");
 }
 
+/// The shipped simulated sensors send MJPEG, as a GelSight Mini does; `raw` and the quality are
+/// read, and a quality outside JPEG's 1..=100 names its key (u8 overflow is a parse error).
+#[test]
+fn the_camera_format_is_read_and_checked() {
+    use rig_core::config::CameraFormat;
+    for text in [
+        rig_core::config::SIM_SOURCE_TOML,
+        rig_core::config::SIM_TARGET_TOML,
+    ] {
+        let c = RigConfig::from_toml_str(text).unwrap();
+        let cam = c.camera.unwrap();
+        assert_eq!((cam.format, cam.jpeg_quality), (CameraFormat::Mjpeg, 90));
+    }
+    let raw = sim_with("format = \"mjpeg\"", "format = \"raw\"");
+    let cam = RigConfig::from_toml_str(&raw).unwrap().camera.unwrap();
+    assert_eq!(cam.format, CameraFormat::Raw);
+    let e = error_of(&sim_with("jpeg_quality = 90", "jpeg_quality = 0"));
+    assert_eq!(e.keys(), vec!["camera.jpeg_quality".to_string()], "{e}");
+    let e = error_of(&sim_with("format = \"mjpeg\"", "format = \"png\""));
+    assert!(e.to_string().contains("format"), "{e}");
+}
+
 /// Extreme values are config errors naming their key, not panics or a run that stalls later.
 #[test]
 fn extreme_camera_rates_and_speeds_are_refused() {

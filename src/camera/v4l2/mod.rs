@@ -128,6 +128,16 @@ impl Request {
             prefer: vec![PixelFormat::Mjpeg, PixelFormat::Yuyv],
         }
     }
+
+    /// What a config's `[camera]` asks for: its size and rate, in its `format` first (MJPEG,
+    /// or raw YUYV), the other one as the fallback.
+    pub fn for_camera(c: &rig_core::config::CameraConfig) -> Self {
+        let mut req = Self::new(c.width_px, c.height_px, c.fps);
+        if c.format == rig_core::config::CameraFormat::Raw {
+            req.prefer.reverse();
+        }
+        req
+    }
 }
 
 /// Picks the stream format for `req` among `offered` (see the module docs for the rules).

@@ -162,6 +162,14 @@ pub fn run(
             Scale::Cpu | Scale::Paper => collect_workers(),
         },
         progress,
+        (
+            "rig reproduce",
+            match protocol.scale {
+                Scale::Paper => Some("choose a smaller --scale (cpu or tiny)"),
+                Scale::Cpu => Some("choose the smaller --scale tiny"),
+                Scale::Tiny => None,
+            },
+        ),
     )?;
     phases.done(out, "collect", t, recorded)?;
 
