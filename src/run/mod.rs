@@ -16,7 +16,8 @@
 //!   the tare of the F/T there (off the gel), then the four stages;
 //! - the **robot state** (500 Hz) comes from the RTDE client's own task;
 //! - the **F/T** and **camera** streams are each read on their own task ([`streams`]); frames
-//!   are PNG-encoded on a dedicated thread;
+//!   are readied for the file on a dedicated thread (an MJPEG camera's JPEG kept as sent, raw
+//!   pixels encoded as PNG);
 //! - the **collector** ([`collector`]) pairs every frame with the wrench interpolated at its
 //!   time and queues the open trajectory's records on the [`Recorder`], whose writer thread
 //!   writes the MCAP file. Every queue is bounded: a slow disk shows as back-pressure.

@@ -6,8 +6,9 @@
 //!   streams for stalls, beats the controller's watchdog and commands the stop first on a
 //!   [`Trip`]. It hands samples on to the recording without ever waiting for it.
 //! - The **camera task** reads every frame of the [`FrameSource`], stamps its arrival for the
-//!   supervisor's stall check, and hands it to the **encoder thread**, which encodes it as PNG
-//!   (lossless, off the async workers) and forwards it. The stream ending raises a [`Trip`].
+//!   supervisor's stall check, and hands it to the **encoder thread**, which readies it for the
+//!   file off the async workers ([`stored_image`]: an MJPEG camera's JPEG as sent, raw pixels
+//!   as lossless PNG) and forwards it. The stream ending raises a [`Trip`].
 //!
 //! Both end in one bounded channel (the collector's input). When it is full the F/T forwarder
 //! and the encoder wait: a slow consumer shows as back-pressure (counted in
@@ -30,7 +31,7 @@ use crate::camera::{CameraError, Frame, FrameSource, PixelFormat};
 use crate::force::{FtStream, TareHandle, TareReport, WrenchSample};
 use crate::record::ImageFormat;
 
-/// Frames queued toward the PNG encoder before they are lost for the recording (about 2 s at
+/// Frames queued toward the encoder thread before they are lost for the recording (about 2 s at
 /// 30 fps, for an encoder held up by back-pressure).
 const ENCODER_QUEUE: usize = 64;
 
@@ -312,7 +313,7 @@ impl Streams {
             encoder = std::thread::Builder::new()
                 .name("png-encoder".into())
                 .spawn(move || encoder_thread(enc_rx, o, c, s))
-                .map_err(|e| tracing::error!("cannot start the PNG encoder thread: {e}"))
+                .map_err(|e| tracing::error!("cannot start the frame encoder thread: {e}"))
                 .ok();
             tasks.push(tokio::spawn(camera_task(
                 cam,
@@ -479,8 +480,8 @@ async fn camera_task(
 
 /// What a frame is recorded as: camera bytes as received where they are already an image
 /// file — an MJPEG camera's JPEG, untouched (it is decoded once, only to refuse a corrupt or
-/// wrongly sized frame as before) — and lossless PNG for raw pixels (RGB, YUYV) and the
-/// simulated camera.
+/// wrongly sized frame as before) — and lossless PNG for raw pixels (RGB, YUYV; the simulated
+/// camera with `[camera] format = "raw"`).
 pub fn stored_image(frame: &Frame) -> Result<(ImageFormat, Vec<u8>), String> {
     let img = frame
         .to_rgb()

@@ -18,13 +18,15 @@ const T1: &str = "p0-d0.2-a000";
 const T2: &str = "p0-d0.2-a030";
 const T3: &str = "p0-d0.2-a060";
 
-/// The budget `rig run` computes for `cfg` with the cone, and the plan's first `n` trajectories.
+/// The budget `rig run` computes for `cfg` with the cone (its frame rendered at the whole
+/// plan's deepest press, as `--limit` leaves it), and the plan's first `n` trajectories.
 fn budget(cfg: &Path, n: usize) -> (Budget, Plan) {
     let config = RigConfig::load(cfg).unwrap();
     let indenter = Indenter::builtin("cone").unwrap();
     let mut plan = Plan::build(&config, &indenter).unwrap();
+    let budget = Budget::for_run(&config, &plan, &indenter);
     plan.trajectories.truncate(n);
-    (Budget::for_run(&config, &plan, &indenter), plan)
+    (budget, plan)
 }
 
 /// Every `(N bytes)` of a message, in order.
