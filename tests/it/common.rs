@@ -85,3 +85,15 @@ pub async fn next_sample(
         _ => panic!("stream stalled: {:?} {:?}", stream.stats(), stream.error()),
     }
 }
+
+/// Fails the test unless this machine lets it mount a tmpfs in a user and mount namespace
+/// (`unshare -rm`), what the small-disk drills record into.
+pub fn needs_unshare() {
+    let probe = std::process::Command::new("unshare")
+        .args(["-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"])
+        .status();
+    assert!(
+        probe.is_ok_and(|s| s.success()),
+        "this test needs `unshare -rm` and tmpfs mounts (util-linux, user namespaces)"
+    );
+}

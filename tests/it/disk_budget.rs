@@ -43,16 +43,6 @@ fn close(a: u64, b: u64) -> bool {
     a.abs_diff(b) as f64 <= 0.03 * b as f64
 }
 
-fn needs_unshare() {
-    let probe = Command::new("unshare")
-        .args(["-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"])
-        .status();
-    assert!(
-        probe.is_ok_and(|s| s.success()),
-        "this test needs `unshare -rm` and tmpfs mounts (util-linux, user namespaces)"
-    );
-}
-
 /// Runs `script` in a user and mount namespace (the tmpfs lives only there).
 fn in_namespace(script: &str) {
     let status = Command::new("unshare")
@@ -73,7 +63,7 @@ fn rc(p: &Path) -> i32 {
 #[test]
 fn a_run_the_disk_cannot_hold_is_refused_before_anything_connects() {
     let _g = common::one_rig_at_a_time();
-    needs_unshare();
+    common::needs_unshare();
     let tmp = tempfile::tempdir().unwrap();
     let cfg = common::edited_sim_config(tmp.path(), "rig.toml", &[]);
     let (b, plan) = budget(&cfg, 3);
@@ -128,7 +118,7 @@ fn a_run_the_disk_cannot_hold_is_refused_before_anything_connects() {
 #[test]
 fn a_disk_filled_mid_run_stops_before_the_next_trajectory_and_resume_completes() {
     let _g = common::one_rig_at_a_time();
-    needs_unshare();
+    common::needs_unshare();
     let tmp = tempfile::tempdir().unwrap();
     let cfg = common::edited_sim_config(tmp.path(), "rig.toml", &[]);
     let (b, plan) = budget(&cfg, 3);
@@ -266,7 +256,7 @@ fn a_disk_filled_mid_run_stops_before_the_next_trajectory_and_resume_completes()
 
 #[test]
 fn rig_reproduce_sums_every_recording_and_refuses_before_recording_any() {
-    needs_unshare();
+    common::needs_unshare();
     let tmp = tempfile::tempdir().unwrap();
     let mnt = tmp.path().join("small");
     std::fs::create_dir(&mnt).unwrap();

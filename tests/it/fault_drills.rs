@@ -218,13 +218,7 @@ fn a_force_over_the_limit_fails_the_trajectory_and_the_run_goes_on() {
 #[test]
 fn a_full_disk_fails_the_trajectory_and_keeps_the_completed_ones() {
     let _g = serial();
-    let probe = Command::new("unshare")
-        .args(["-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"])
-        .status();
-    assert!(
-        probe.is_ok_and(|s| s.success()),
-        "this test needs `unshare -rm` and tmpfs mounts (util-linux, user namespaces)"
-    );
+    common::needs_unshare();
     let tmp = tempfile::tempdir().unwrap();
     let cfg = config(tmp.path(), &[CONTINUE]);
     let mnt = tmp.path().join("small");
