@@ -13,16 +13,15 @@
 //!   the controller's 2 ms ticks ([`Ur5e::tip_pose_moving`](crate::ur5e::Ur5e::tip_pose_moving)),
 //!   not the last tick's pose, which put the F/T up to a tick behind the frames;
 //! - the F/T reads the wrench off the motion's line at most `MAX_LINE_MM` (5 µm, in
-//!   `read_ahead.rs`) past the newest step, and solves
-//!   beyond it: at the up stage's 5 mm/s two physics steps are 200 µm apart, and the linear
-//!   reading over that span was 0.5 N off where a flat face lifts off.
+//!   `read_ahead.rs`) past the newest step, and solves beyond it: at the up stage's 5 mm/s
+//!   two physics steps are 100 µm apart, and reading up to two spacings on was 0.5 N off
+//!   where a flat face lifts off.
 //!
-//! With both, the largest error over the first 48 trajectories (the centre point) of the wave,
-//! cylinder and cone plans is 0.03–0.06 N, at the Nano17's noise (`docs/experiments.md`,
-//! "Labels"). One cause is still open: **a contact step depends on its length** (see
-//! `sim/contact`: the contact search lags the friction solve, and iterating the two does not
-//! converge), so where the whole gel slides (paralines in its reverse stage) Fz still differs
-//! by up to 0.14 N.
+//! With both, the largest error over the wave's and the cone's full plans is 0.055 and 0.027 N,
+//! at the Nano17's noise (`docs/experiments.md`, "Labels"). One cause is still open: **a
+//! contact step depends on its length** (see `sim/contact`: the contact search lags the friction
+//! solve, and iterating the two does not converge), so where a slide turns or the whole gel
+//! slides Fz still differs by up to 0.08 N (triangle) and 0.14 N (paralines).
 
 use std::collections::VecDeque;
 use std::io;
