@@ -128,6 +128,12 @@ pub struct FrameFigure {
 }
 
 impl FrameFigure {
+    /// No camera: no frames.
+    const NO_CAMERA: FrameFigure = FrameFigure {
+        stored_bytes: 0,
+        basis: FrameBasis::NoCamera,
+    };
+
     fn describe(&self) -> &'static str {
         match self.basis {
             FrameBasis::NoCamera => "no camera",
@@ -203,10 +209,7 @@ impl Budget {
             frame: if config.camera.is_some() {
                 frame
             } else {
-                FrameFigure {
-                    stored_bytes: 0,
-                    basis: FrameBasis::NoCamera,
-                }
+                FrameFigure::NO_CAMERA
             },
         }
     }
@@ -281,10 +284,7 @@ impl Budget {
 /// The stored size of one frame of `config`'s camera for `plan` (see the module doc).
 pub fn frame_figure(config: &RigConfig, plan: &Plan, indenter: &Indenter) -> FrameFigure {
     let Some(cam) = &config.camera else {
-        return FrameFigure {
-            stored_bytes: 0,
-            basis: FrameBasis::NoCamera,
-        };
+        return FrameFigure::NO_CAMERA;
     };
     let bound = FrameFigure {
         stored_bytes: format_bound(cam.format, cam.width_px, cam.height_px),

@@ -311,7 +311,7 @@ impl Streams {
             let (enc_tx, enc_rx) = mpsc::channel::<Frame>(ENCODER_QUEUE);
             let (c, o, s) = (counters.clone(), out.clone(), stop.clone());
             encoder = std::thread::Builder::new()
-                .name("png-encoder".into())
+                .name("frame-encoder".into())
                 .spawn(move || encoder_thread(enc_rx, o, c, s))
                 .map_err(|e| tracing::error!("cannot start the frame encoder thread: {e}"))
                 .ok();
