@@ -132,6 +132,42 @@ impl Frame {
     }
 }
 
+impl Frame {
+    /// Checks an MJPEG frame without decoding its pixels: it starts with a JPEG's start-of-image
+    /// marker, ends with its end-of-image marker (zero bytes after it are allowed: some UVC
+    /// cameras pad their buffers), and its frame header declares the negotiated size. That
+    /// refuses the corrupt frames USB transfers make (truncated, zero-filled, another mode's)
+    /// at a small part of a decode's cost. Other formats pass.
+    pub fn check_jpeg(&self) -> Result<(), CameraError> {
+        if self.format.pixel != PixelFormat::Mjpeg {
+            return Ok(());
+        }
+        let bad = |why: String| Err(CameraError::BadFrame(format!("MJPEG frame: {why}")));
+        let data = &self.data;
+        if !data.starts_with(&[0xff, 0xd8]) {
+            return bad("no start-of-image marker".into());
+        }
+        let end = data.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+        if end < 4 || data[end - 2..end] != [0xff, 0xd9] {
+            return bad(format!(
+                "no end-of-image marker: truncated ({} bytes)",
+                data.len()
+            ));
+        }
+        use image::ImageDecoder as _;
+        let decoder = image::codecs::jpeg::JpegDecoder::new(std::io::Cursor::new(&data[..end]))
+            .map_err(|e| CameraError::BadFrame(format!("MJPEG frame: {e}")))?;
+        let (w, h) = decoder.dimensions();
+        if (w, h) != (self.format.width, self.format.height) {
+            return bad(format!(
+                "its header says {w}×{h}, but the negotiated format is {}×{}",
+                self.format.width, self.format.height
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// BT.601 limited-range YUYV → RGB.
 pub fn yuyv_to_rgb(data: &[u8], width: u32, height: u32) -> Result<image::RgbImage, CameraError> {
     let want = width as usize * height as usize * 2;
@@ -329,5 +365,36 @@ mod tests {
             mjpeg_frame(vec![0xff, 0xd8, 1, 2, 3], 32, 16).to_rgb(),
             Err(CameraError::BadFrame(_))
         ));
+    }
+    #[test]
+    fn mjpeg_check_refuses_truncated_padded_wrong_size_and_garbage_without_decoding() {
+        let src = image::RgbImage::from_fn(32, 16, |x, y| {
+            image::Rgb([(x * 8) as u8, (y * 16) as u8, 9])
+        });
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+            .encode_image(&src)
+            .unwrap();
+        assert!(mjpeg_frame(jpeg.clone(), 32, 16).check_jpeg().is_ok());
+        // Zero padding after the end marker, as some UVC cameras send: still the same image.
+        let mut padded = jpeg.clone();
+        padded.extend([0u8; 64]);
+        assert!(mjpeg_frame(padded, 32, 16).check_jpeg().is_ok());
+        let refused = |data: Vec<u8>, w: u32, h: u32| {
+            matches!(
+                mjpeg_frame(data, w, h).check_jpeg(),
+                Err(CameraError::BadFrame(_))
+            )
+        };
+        assert!(
+            refused(jpeg[..jpeg.len() - 10].to_vec(), 32, 16),
+            "truncated"
+        );
+        assert!(refused(jpeg.clone(), 16, 32), "another mode's size");
+        assert!(refused(vec![0xff, 0xd8, 1, 2, 3], 32, 16), "garbage");
+        assert!(refused(vec![0u8; 512], 32, 16), "a zero-filled buffer");
+        let mut no_soi = jpeg.clone();
+        no_soi[1] = 0;
+        assert!(refused(no_soi, 32, 16), "no start marker");
     }
 }

@@ -479,16 +479,17 @@ async fn camera_task(
 }
 
 /// What a frame is recorded as: camera bytes as received where they are already an image
-/// file — an MJPEG camera's JPEG, untouched (it is decoded once, only to refuse a corrupt or
-/// wrongly sized frame as before) — and lossless PNG for raw pixels (RGB, YUYV; the simulated
-/// camera with `[camera] format = "raw"`).
+/// file — an MJPEG camera's JPEG, untouched (checked for its markers and size, not decoded:
+/// [`Frame::check_jpeg`]) — and lossless PNG for raw pixels (RGB, YUYV; the simulated camera
+/// with `[camera] format = "raw"`).
 pub fn stored_image(frame: &Frame) -> Result<(ImageFormat, Vec<u8>), String> {
+    if frame.format.pixel == PixelFormat::Mjpeg {
+        frame.check_jpeg().map_err(|e| e.to_string())?;
+        return Ok((ImageFormat::Jpeg, frame.data.clone()));
+    }
     let img = frame
         .to_rgb()
         .map_err(|e| format!("cannot convert to RGB: {e}"))?;
-    if frame.format.pixel == PixelFormat::Mjpeg {
-        return Ok((ImageFormat::Jpeg, frame.data.clone()));
-    }
     let png = crate::record::png::encode(&img).map_err(|e| format!("PNG encoding failed: {e}"))?;
     Ok((ImageFormat::Png, png))
 }

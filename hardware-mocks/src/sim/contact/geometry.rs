@@ -217,8 +217,8 @@ pub(super) fn overlap(
             let offset = if n > 1 { cell_offset(k) } else { [0.0, 0.0] };
             let (mut sum, mut best) = (0.0, f64::NEG_INFINITY);
             for [a, b] in &pattern {
-                let sx = x + grid.cell_mm * (((a + offset[0]) % 1.0) - 0.5);
-                let sy = y + grid.cell_mm * (((b + offset[1]) % 1.0) - 0.5);
+                let sx = x + grid.cell_mm * (wrap_unit(a + offset[0]) - 0.5);
+                let sy = y + grid.cell_mm * (wrap_unit(b + offset[1]) - 0.5);
                 let g = indenter.gap_mm(sx - axis_mm[0], sy - axis_mm[1]);
                 if g.is_finite() {
                     let v = depth_mm - g;
@@ -267,7 +267,14 @@ fn gcd(a: usize, b: usize) -> usize {
 fn cell_offset(k: usize) -> [f64; 2] {
     const PHI: f64 = 0.618_033_988_749_895;
     const PSI: f64 = 0.754_877_666_246_693; // 1 / plastic number
-    [(k as f64 * PHI) % 1.0, (k as f64 * PSI) % 1.0]
+    let frac = |x: f64| x - x.trunc();
+    [frac(k as f64 * PHI), frac(k as f64 * PSI)]
+}
+
+/// `x % 1.0` for `x` in `[0, 2)`, bit for bit (the subtraction is exact there), without a call
+/// to libm's `fmod` or `trunc` per sub-sample: they were 7 % of a simulated run's CPU.
+fn wrap_unit(x: f64) -> f64 {
+    if x >= 1.0 { x - 1.0 } else { x }
 }
 
 #[cfg(test)]
