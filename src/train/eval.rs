@@ -93,6 +93,9 @@ pub fn force_range(set: &EvalSet) -> [f64; 3] {
 /// Table rows for the seen and unseen groups (those present) and all together.
 pub fn rows(method: &str, modality: &str, p: &Predictions, split: &Split) -> Vec<Row> {
     let mut rows = Vec::new();
+    // One threshold for every group: the loaded frames are the same whichever group they
+    // are scored in.
+    let load = metrics::ShearLoad::of(&p.truth);
     for group in ["seen", "unseen", "all"] {
         let (pred, truth): (Vec<[f64; 3]>, Vec<[f64; 3]>) = p
             .indenter
@@ -104,7 +107,7 @@ pub fn rows(method: &str, modality: &str, p: &Predictions, split: &Split) -> Vec
         if pred.is_empty() {
             continue;
         }
-        let s: AxisScores = metrics::score(&pred, &truth);
+        let s: AxisScores = metrics::score_at(&pred, &truth, load);
         rows.push(Row {
             method: method.into(),
             modality: modality.into(),
@@ -113,6 +116,8 @@ pub fn rows(method: &str, modality: &str, p: &Predictions, split: &Split) -> Vec
             r2: s.r2,
             total_mae: s.total_mae,
             n: s.n,
+            loaded_mae: (s.loaded_n > 0).then_some(s.loaded_mae),
+            loaded_n: s.loaded_n,
         });
     }
     rows

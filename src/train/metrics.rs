@@ -53,18 +53,78 @@ pub struct AxisScores {
     /// Mean | |F̂| − |F| |: the error of the force magnitude.
     pub total_mae: f64,
     pub n: usize,
+    /// MAE per axis over the shear-loaded frames only ([`ShearLoad`]): most frames carry little
+    /// shear, so a model that predicts no shear at all still scores a small MAE over every
+    /// frame; over these frames it cannot. NaN when no frame is loaded.
+    pub loaded_mae: [f64; 3],
+    /// How many frames are shear-loaded.
+    pub loaded_n: usize,
 }
 
+/// Which frames count as shear-loaded: true |F_shear| = √(Fx² + Fy²) above `fraction` of its
+/// range over a reference set. One threshold for every group and model scored on the same
+/// data, so their loaded MAEs are over the same frames.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ShearLoad {
+    pub threshold_n: f64,
+}
+
+impl ShearLoad {
+    /// The fraction of the shear range above which a frame is loaded.
+    pub const FRACTION: f64 = 0.1;
+
+    /// [`Self::FRACTION`] of the range (max − min) of |F_shear| over `truth`.
+    pub fn of(truth: &[[f64; 3]]) -> Self {
+        let (lo, hi) = truth
+            .iter()
+            .map(shear_n)
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            });
+        let range = if hi >= lo { hi - lo } else { 0.0 };
+        Self {
+            threshold_n: Self::FRACTION * range,
+        }
+    }
+
+    /// Whether a frame whose true force is `f` is loaded. A set without shear (range 0) has
+    /// no loaded frame.
+    pub fn loaded(&self, f: &[f64; 3]) -> bool {
+        shear_n(f) > self.threshold_n
+    }
+}
+
+/// |F_shear| = √(Fx² + Fy²), N.
+pub fn shear_n(f: &[f64; 3]) -> f64 {
+    f[0].hypot(f[1])
+}
+
+/// [`score_at`] with the shear-loaded frames taken from `truth` itself.
 pub fn score(pred: &[[f64; 3]], truth: &[[f64; 3]]) -> AxisScores {
+    score_at(pred, truth, ShearLoad::of(truth))
+}
+
+/// MAE and R² per axis over every frame, the magnitude's MAE, and the MAE per axis over the
+/// frames that `load` calls shear-loaded.
+pub fn score_at(pred: &[[f64; 3]], truth: &[[f64; 3]], load: ShearLoad) -> AxisScores {
     let axis = |v: &[[f64; 3]], a: usize| v.iter().map(|x| x[a]).collect::<Vec<_>>();
     let norm = |x: &[f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
     let mags_p: Vec<f64> = pred.iter().map(norm).collect();
     let mags_t: Vec<f64> = truth.iter().map(norm).collect();
+    let (lp, lt): (Vec<[f64; 3]>, Vec<[f64; 3]>) = pred
+        .iter()
+        .zip(truth)
+        .filter(|(_, t)| load.loaded(t))
+        .map(|(p, t)| (*p, *t))
+        .unzip();
     AxisScores {
         mae: std::array::from_fn(|a| mae(&axis(pred, a), &axis(truth, a))),
         r2: std::array::from_fn(|a| r2(&axis(pred, a), &axis(truth, a))),
         total_mae: mae(&mags_p, &mags_t),
         n: pred.len().min(truth.len()),
+        loaded_mae: std::array::from_fn(|a| mae(&axis(&lp, a), &axis(&lt, a))),
+        loaded_n: lp.len(),
     }
 }
 
@@ -222,6 +282,47 @@ pub fn kid(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A model that predicts no shear scores a small MAE over every frame when few frames
+    /// carry shear, but its loaded MAE is the loaded frames' whole shear; R² shows it too.
+    #[test]
+    fn predicting_no_shear_shows_in_the_loaded_mae_and_r2() {
+        // 90 frames of pure normal force, 10 with 1 N of shear along x.
+        let truth: Vec<[f64; 3]> = (0..100)
+            .map(|i| {
+                if i < 90 {
+                    [0.0, 0.0, -2.0]
+                } else {
+                    [1.0, 0.0, -2.0]
+                }
+            })
+            .collect();
+        let zero_shear: Vec<[f64; 3]> = truth.iter().map(|t| [0.0, 0.0, t[2]]).collect();
+        let s = score(&zero_shear, &truth);
+        assert!((s.mae[0] - 0.1).abs() < 1e-12, "{:?}", s.mae);
+        assert_eq!(s.loaded_n, 10);
+        assert!((s.loaded_mae[0] - 1.0).abs() < 1e-12, "{:?}", s.loaded_mae);
+        assert_eq!(s.loaded_mae[2], 0.0);
+        assert!(s.r2[0] < 0.0, "{:?}", s.r2);
+        // A model that reads the shear: loaded MAE 0.
+        let s = score(&truth, &truth);
+        assert_eq!(s.loaded_mae, [0.0; 3]);
+        // The threshold is 10 % of the |F_shear| range (0..1 N): 0.1 N; a frame at exactly
+        // the threshold is not loaded.
+        let load = ShearLoad::of(&truth);
+        assert!((load.threshold_n - 0.1).abs() < 1e-12);
+        assert!(!load.loaded(&[0.1, 0.0, 0.0]) && load.loaded(&[0.0, -0.11, 0.0]));
+    }
+
+    /// No shear anywhere: no loaded frame, and a NaN loaded MAE rather than a flattering 0.
+    #[test]
+    fn a_set_without_shear_has_no_loaded_frames() {
+        let truth = vec![[0.0, 0.0, -1.0]; 5];
+        let s = score(&truth, &truth);
+        assert_eq!(s.loaded_n, 0);
+        assert!(s.loaded_mae.iter().all(|v| v.is_nan()));
+        assert!(score(&[], &[]).loaded_mae[0].is_nan());
+    }
 
     #[test]
     fn mae_and_r2_on_hand_computed_values() {
