@@ -414,7 +414,8 @@ async fn capture_loop(
     let start = (clock.now_ns().div_ceil(period_ns) * period_ns).saturating_sub(period_ns);
     let mut seq = 0u64;
     let mut next_t = capture_time_ns(&config, start, seq);
-    type Render = JoinHandle<Option<SimPayload>>;
+    let pool = RenderPool::new(parallel);
+    type Render = tokio::sync::oneshot::Receiver<Option<SimPayload>>;
     let mut inflight: std::collections::VecDeque<(u64, u64, Render)> =
         std::collections::VecDeque::new();
     loop {
@@ -473,8 +474,78 @@ async fn capture_loop(
                         .map_err(|e| tracing::warn!("simulated camera: {e}"))
                         .ok()
                 };
-                inflight.push_back((this, t, tokio::task::spawn_blocking(job)));
+                inflight.push_back((this, t, pool.run(job)));
             }
+        }
+    }
+}
+
+/// The camera's render threads. Rendering and encoding are most of a simulated run's CPU; on a
+/// machine with few cores they ran beside the contact physics, which the simulated clock waits
+/// for, so its steps queued behind renders and the clock held. These threads run at a lower
+/// scheduling priority (nice +5 where the OS allows it): the physics, the devices and the
+/// recorder go first, and the renders take the rest of the CPU, which is most of it.
+struct RenderPool {
+    jobs: std::sync::mpsc::Sender<Box<dyn FnOnce() + Send>>,
+}
+
+impl RenderPool {
+    fn new(threads: usize) -> Self {
+        let (jobs, rx) = std::sync::mpsc::channel::<Box<dyn FnOnce() + Send>>();
+        let rx = Arc::new(Mutex::new(rx));
+        for k in 0..threads.max(1) {
+            let rx = rx.clone();
+            let spawned = std::thread::Builder::new()
+                .name(format!("sim-camera-render-{k}"))
+                .spawn(move || {
+                    lower_this_threads_priority();
+                    loop {
+                        // The lock is held only while waiting for the next job.
+                        let job = match rx.lock() {
+                            Ok(rx) => rx.recv(),
+                            Err(_) => return,
+                        };
+                        match job {
+                            Ok(job) => job(),
+                            Err(_) => return, // the camera stopped
+                        }
+                    }
+                });
+            if let Err(e) = spawned {
+                tracing::error!("simulated camera: cannot start a render thread: {e}");
+            }
+        }
+        Self { jobs }
+    }
+
+    /// Runs `job` on a render thread; the receiver gets its result (or is closed if the job
+    /// panicked or no render thread could start, which the camera counts as a failed render).
+    fn run(
+        &self,
+        job: impl FnOnce() -> Option<SimPayload> + Send + 'static,
+    ) -> tokio::sync::oneshot::Receiver<Option<SimPayload>> {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let _ = self.jobs.send(Box::new(move || {
+            let _ = tx.send(job());
+        }));
+        rx
+    }
+}
+
+/// Nice +5 for the calling thread (Linux schedules threads separately); where that is refused,
+/// the thread keeps its priority.
+fn lower_this_threads_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        use nix::libc;
+        // SAFETY: plain system calls on the calling thread's own id, no memory passed.
+        let r = unsafe {
+            let tid = libc::gettid();
+            let now = libc::getpriority(libc::PRIO_PROCESS, tid as libc::id_t);
+            libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, (now + 5).min(19))
+        };
+        if r != 0 {
+            tracing::debug!("simulated camera: render thread keeps its priority");
         }
     }
 }
