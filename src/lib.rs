@@ -78,6 +78,7 @@ pub mod dataset;
 pub mod durable;
 pub mod force;
 pub mod live;
+pub mod markers;
 pub mod plan;
 pub mod predict;
 pub mod record;
