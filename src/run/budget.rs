@@ -581,15 +581,12 @@ impl DiskUse {
 
     /// The report's line.
     pub fn line(&self) -> String {
-        let per_frame = if self.frames > 0 {
-            format!(
-                "{} bytes per frame over its {} frames (estimated at {} before the run)",
-                self.bytes / self.frames,
-                self.frames,
-                self.estimated_frame_bytes
-            )
-        } else {
-            "no frames".to_owned()
+        let per_frame = match self.bytes.checked_div(self.frames) {
+            Some(each) => format!(
+                "{each} bytes per frame over its {} frames (estimated at {} before the run)",
+                self.frames, self.estimated_frame_bytes
+            ),
+            None => "no frames".to_owned(),
         };
         format!("disk: {} written, {per_frame}\n", both(self.bytes))
     }
