@@ -142,6 +142,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<Summary> {
         stride: if replay { Some(1) } else { args.stride },
         tare_frames: if tare { args.tare_frames } else { 0 },
         marker: config.as_ref().map(marker_of).unwrap_or_default(),
+        optics: config.as_ref().and_then(|c| c.optics.clone()),
     };
     let predictor = Predictor::load(&args.model, opts)?;
     if let Some(cam) = config.as_ref().and_then(|c| c.camera.as_ref()) {

@@ -60,7 +60,7 @@ use std::time::{Duration, Instant};
 use anyhow::bail;
 use serde::Serialize;
 
-use crate::train::data::{ImageSpec, prepare_image};
+use crate::train::data::{FramePrep, ImageSpec, prepare_image};
 use crate::train::force::{ForceModel, ModelInfo};
 use crate::train::modality::MarkerParams;
 
@@ -78,6 +78,9 @@ pub struct PredictorOptions {
     pub tare_frames: usize,
     /// Marker sizes of the camera's images, for the `rgb` and `marker` modalities.
     pub marker: MarkerParams,
+    /// The camera's optics (scale, turn, markers), for the `flow` modality: its markers are
+    /// tracked from each trajectory's first frame.
+    pub optics: Option<rig_core::optics::OpticsConfig>,
 }
 
 /// One force estimate.
@@ -124,6 +127,10 @@ pub fn default_stride(info: &ModelInfo) -> anyhow::Result<usize> {
 pub struct Predictor {
     model: ForceModel,
     marker: MarkerParams,
+    optics: Option<rig_core::optics::OpticsConfig>,
+    /// The `flow` modality's marker tracker for the trajectory under way (made at its first
+    /// frame).
+    flow: Option<FramePrep>,
     stride: usize,
     /// Embeddings of the last (T−1)·stride + 1 frames since the trajectory started, oldest
     /// first.
@@ -153,6 +160,8 @@ impl Predictor {
         Ok(Self {
             model,
             marker: opts.marker,
+            optics: opts.optics,
+            flow: None,
             stride,
             ring: VecDeque::new(),
             tare_frames: opts.tare_frames,
@@ -190,6 +199,7 @@ impl Predictor {
     /// window's stride changes (replay: ⌊n/T⌋ of the trajectory). The tare is kept.
     pub fn start_trajectory(&mut self, stride: Option<usize>) {
         self.ring.clear();
+        self.flow = None;
         if let Some(s) = stride {
             self.stride = s.max(1);
         }
@@ -198,6 +208,11 @@ impl Predictor {
     /// Marker sizes of the frames to come (a recording's own, in replay).
     pub fn set_marker(&mut self, marker: MarkerParams) {
         self.marker = marker;
+    }
+
+    /// Optics of the frames to come (a recording's own, in replay), for the `flow` modality.
+    pub fn set_optics(&mut self, optics: rig_core::optics::OpticsConfig) {
+        self.optics = Some(optics);
     }
 
     /// Where the last frame's time went.
@@ -218,7 +233,23 @@ impl Predictor {
     pub fn push(&mut self, frame: &image::RgbImage, t_ns: u64) -> anyhow::Result<Option<Estimate>> {
         self.check_frame_size(frame.width(), frame.height())?;
         let t0 = Instant::now();
-        let px = prepare_image(frame, &self.spec(), &self.marker);
+        let spec = self.spec();
+        let px = if spec.modality.per_frame() {
+            prepare_image(frame, &spec, &self.marker)
+        } else {
+            // Marker displacement: the trajectory's first frame is its reference.
+            if self.flow.is_none() {
+                let optics = self.optics.as_ref().ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "a {} model tracks the camera's markers: it needs the sensor's [optics] \
+                         (give --config with the rig's config)",
+                        spec.modality
+                    )
+                })?;
+                self.flow = Some(FramePrep::new(&spec, self.marker, Some(optics))?);
+            }
+            self.flow.as_mut().expect("made above").next(frame)?
+        };
         self.last_times.prepare = t0.elapsed();
         Ok(self.push_prepared(&px, t_ns))
     }

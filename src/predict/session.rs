@@ -57,6 +57,8 @@ pub struct Input {
     pub stride: Option<usize>,
     /// Replay: marker sizes of this trajectory's recording (from its manifest's optics).
     pub marker: Option<MarkerParams>,
+    /// Replay: the recording's optics (for the `flow` modality).
+    pub optics: Option<Arc<rig_core::optics::OpticsConfig>>,
     /// The camera's frame counter.
     pub seq: i64,
     /// The frame's timestamp, ns.
@@ -290,6 +292,9 @@ pub fn run(
             if let Some(m) = input.marker {
                 predictor.set_marker(m);
             }
+            if let Some(o) = &input.optics {
+                predictor.set_optics((**o).clone());
+            }
             cur_traj = input.traj;
         }
         let img = match input.image.decode() {
@@ -371,6 +376,7 @@ mod tests {
             traj_id: None,
             stride: None,
             marker: None,
+            optics: None,
             seq,
             t_ns: seq as u64,
             image: FrameImage::Stored(crate::record::ImageFormat::Png, Vec::new()),

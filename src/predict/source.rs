@@ -32,7 +32,7 @@ use crate::record::Record;
 use crate::record::channels::{TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_TRUTH};
 use crate::record::manifest::{Manifest, Status};
 use crate::record::reader::{self, Message};
-use crate::train::data::{find_runs, marker_params};
+use crate::train::data::{find_runs, marker_params, sensor_optics};
 use crate::train::modality::MarkerParams;
 
 /// Marker sizes of a rig's images, from its config's optics (as training reads a manifest's).
@@ -60,6 +60,7 @@ struct TrajFile {
     path: PathBuf,
     id: Arc<str>,
     marker: MarkerParams,
+    optics: Option<Arc<rig_core::optics::OpticsConfig>>,
 }
 
 impl Replay {
@@ -69,6 +70,7 @@ impl Replay {
         for run in find_runs(&self.dir)? {
             let m = Manifest::load(&run).map_err(anyhow::Error::msg)?;
             let marker = marker_params(&m.config);
+            let optics = sensor_optics(&m.config).ok().map(Arc::new);
             for t in &m.trajectories {
                 if t.status != Status::Complete {
                     continue;
@@ -78,6 +80,7 @@ impl Replay {
                         path: run.join(file),
                         id: Arc::from(t.id.as_str()),
                         marker,
+                        optics: optics.clone(),
                     });
                 }
             }
@@ -164,6 +167,7 @@ impl Replay {
                     traj_id: Some(f.id.clone()),
                     stride: Some(stride),
                     marker: Some(f.marker),
+                    optics: f.optics.clone(),
                     seq,
                     t_ns,
                     image: FrameImage::Stored(format, data),
@@ -223,6 +227,7 @@ impl SimRun {
                     traj_id: None,
                     stride: None,
                     marker: None,
+                    optics: None,
                     seq: *seq,
                     t_ns: *t_ns,
                     image: FrameImage::Stored(*format, data.clone()),
@@ -325,6 +330,7 @@ pub async fn read_camera(
                     traj_id: None,
                     stride: None,
                     marker: None,
+                    optics: None,
                     seq: frame.sequence as i64,
                     t_ns: frame.capture_t_ns.unwrap_or(frame.received_t_ns),
                     image: FrameImage::Camera(Box::new(frame)),

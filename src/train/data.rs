@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
-use super::modality::{MarkerParams, Modality};
+use super::modality::{FLOW_LEVELS_PER_MM, MarkerParams, Modality};
 use crate::record::channels::{TOPIC_IMAGE, TOPIC_PAIRED};
 use crate::record::manifest::{Manifest, Status};
 use crate::record::reader::{self, Message};
@@ -383,12 +383,34 @@ fn load_any(
         let m = Manifest::load(&run).map_err(anyhow::Error::msg)?;
         // Dots grow with the magnification.
         let params = marker_params(&m.config).scaled(zoom as f32);
+        let optics = if spec.modality.per_frame() {
+            None
+        } else {
+            if zoom != 1.0 {
+                bail!(
+                    "{}: marker displacement is measured on the frames as recorded, not zoomed",
+                    run.display()
+                );
+            }
+            Some(sensor_optics(&m.config).with_context(|| {
+                format!(
+                    "{}: marker displacement needs the sensor's optics",
+                    run.display()
+                )
+            })?)
+        };
         for t in &m.trajectories {
             if t.status != Status::Complete {
                 continue;
             }
             if let Some(file) = &t.file {
-                jobs.push((run.join(file), t.id.clone(), m.indenter.clone(), params));
+                jobs.push((
+                    run.join(file),
+                    t.id.clone(),
+                    m.indenter.clone(),
+                    params,
+                    optics.clone(),
+                ));
             }
         }
     }
@@ -407,10 +429,14 @@ fn load_any(
             s.spawn(|| {
                 loop {
                     let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    let Some((path, id, indenter, params)) = jobs.get(i) else {
+                    let Some((path, id, indenter, params, optics)) = jobs.get(i) else {
                         break;
                     };
-                    let r = load_trajectory(path, id, indenter, spec, zoom, params, want_forces)
+                    let prep = FramePrep::new(spec, *params, optics.as_ref());
+                    let r = prep
+                        .and_then(|prep| {
+                            load_trajectory(path, id, indenter, spec, zoom, prep, want_forces)
+                        })
                         .with_context(|| format!("{}", path.display()));
                     bar.inc(1);
                     slots.lock().expect("loader poisoned")[i] = Some(r);
@@ -438,6 +464,109 @@ pub fn marker_params(config: &serde_json::Value) -> MarkerParams {
     }
 }
 
+/// The sensor's optics from a manifest's rig config.
+pub fn sensor_optics(config: &serde_json::Value) -> anyhow::Result<rig_core::optics::OpticsConfig> {
+    let optics = config
+        .get("optics")
+        .context("the manifest's config has no [optics] section")?;
+    serde_json::from_value(optics.clone()).context("the manifest's [optics] section")
+}
+
+/// Makes a trajectory's frames, in order, into the network's images: [`prepare_image`] for
+/// the paper's modalities, and for [`Modality::Flow`] the markers tracked from the first frame
+/// given (the trajectory's no-contact start, or a live session's first frame), their
+/// displacement resampled on a grid of the network's size over [`FLOW_VIEW_MM`] of gel.
+pub struct FramePrep {
+    spec: ImageSpec,
+    params: MarkerParams,
+    flow: Option<Flow>,
+}
+
+struct Flow {
+    geometry: crate::markers::SensorGeometry,
+    grid: crate::markers::GridSpec,
+    tracker: Option<crate::markers::Tracker>,
+}
+
+/// The gel area a [`Modality::Flow`] image covers, mm (x, y), centred on the image centre:
+/// `markers::GridSpec`'s default area, inside the view of the simulated sensors and of one
+/// with a 1.1–1.2 mm marker pitch.
+pub const FLOW_VIEW_MM: [f64; 2] = [8.0, 6.0];
+
+impl FramePrep {
+    /// `optics`: the sensor's (needed for [`Modality::Flow`] only).
+    pub fn new(
+        spec: &ImageSpec,
+        params: MarkerParams,
+        optics: Option<&rig_core::optics::OpticsConfig>,
+    ) -> anyhow::Result<Self> {
+        let flow = if spec.modality.per_frame() {
+            None
+        } else {
+            let optics = optics.context("marker displacement needs the sensor's optics")?;
+            let geometry =
+                crate::markers::SensorGeometry::from_optics(optics).map_err(anyhow::Error::msg)?;
+            let (nx, ny) = (spec.width as usize, spec.height as usize);
+            let spacing_mm =
+                (FLOW_VIEW_MM[0] / nx.max(1) as f64).max(FLOW_VIEW_MM[1] / ny.max(1) as f64);
+            let grid = crate::markers::GridSpec {
+                nx,
+                ny,
+                spacing_mm,
+                ..crate::markers::GridSpec::default()
+            };
+            grid.check().map_err(anyhow::Error::msg)?;
+            Some(Flow {
+                geometry,
+                grid,
+                tracker: None,
+            })
+        };
+        Ok(Self {
+            spec: *spec,
+            params,
+            flow,
+        })
+    }
+
+    /// The network's image of the next frame (`spec.frame_bytes()` RGB bytes).
+    pub fn next(&mut self, img: &image::RgbImage) -> anyhow::Result<Vec<u8>> {
+        let Some(flow) = self.flow.as_mut() else {
+            return Ok(prepare_image(img, &self.spec, &self.params));
+        };
+        match flow.tracker.as_mut() {
+            None => {
+                let t = crate::markers::Tracker::new(img, &flow.geometry)
+                    .map_err(anyhow::Error::msg)
+                    .context("the reference (first) frame")?;
+                flow.tracker = Some(t);
+            }
+            Some(t) => {
+                t.update(img).map_err(anyhow::Error::msg)?;
+            }
+        }
+        let field = flow
+            .tracker
+            .as_ref()
+            .map(|t| t.grid(&flow.grid))
+            .unwrap_or_default();
+        Ok(flow_image(&field))
+    }
+}
+
+/// A displacement field (`[dx, dy]` mm a cell, row-major) as a [`Modality::Flow`] image.
+pub fn flow_image(field: &[[f32; 2]]) -> Vec<u8> {
+    let level = |v: f32| {
+        (128.0 + f64::from(v) * FLOW_LEVELS_PER_MM)
+            .round()
+            .clamp(0.0, 255.0) as u8
+    };
+    field
+        .iter()
+        .flat_map(|d| [level(d[0]), level(d[1]), 128])
+        .collect()
+}
+
 /// Decode one trajectory file (through the cache).
 fn load_trajectory(
     path: &Path,
@@ -445,7 +574,7 @@ fn load_trajectory(
     indenter: &str,
     spec: &ImageSpec,
     zoom: f64,
-    params: &MarkerParams,
+    mut prep: FramePrep,
     want_forces: bool,
 ) -> anyhow::Result<Loaded> {
     let meta = fs::metadata(path)?;
@@ -514,7 +643,7 @@ fn load_trajectory(
         } else {
             super::pitch::zoom_about_centre(&img, zoom)
         };
-        pixels.extend_from_slice(&prepare_image(&img, spec, params));
+        pixels.extend_from_slice(&prep.next(&img).with_context(|| format!("frame {seq}"))?);
         forces.push(paired[seq]);
     }
     let frames = images.len();
@@ -695,6 +824,16 @@ fn load_prepared(dir: &Path, spec: &ImageSpec, want_forces: bool) -> anyhow::Res
             "{}: frames.bin holds {} bytes, the index needs {need}",
             dir.display(),
             all.len()
+        );
+    }
+    if !spec.modality.per_frame() && stored.modality != spec.modality {
+        bail!(
+            "{} holds {} images at {}×{}; marker displacement is measured on recorded frames: \
+             give the recording instead",
+            dir.display(),
+            stored.modality,
+            stored.width,
+            stored.height
         );
     }
     if stored.modality != Modality::RgbMarker && stored.modality != spec.modality {

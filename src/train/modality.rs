@@ -5,6 +5,14 @@
 //!   Marching Method", Journal of Graphics Tools 9(1), 2004);
 //! - M (`marker`): the markers alone, as the black-hat response (closing − image), bright dots on
 //!   black.
+//!
+//! And one of ours, not the paper's:
+//! - D (`flow`): the markers' displacement from the trajectory's first, no-contact frame, in
+//!   millimetres on a fixed grid ([`crate::markers`]), drawn as an image: red and green are the
+//!   x and y displacement about mid-grey ([`FLOW_LEVELS_PER_MM`]), blue mid-grey. It does not
+//!   depend on the marker pitch, the LEDs or the camera's turn, so it carries from one sensor to
+//!   another without translation. It needs the trajectory's frames in order:
+//!   `data::FramePrep` makes it.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -20,16 +28,31 @@ pub enum Modality {
     Rgb,
     #[serde(rename = "marker")]
     Marker,
+    #[serde(rename = "flow")]
+    Flow,
 }
 
+/// Image levels per millimetre of marker displacement in a [`Modality::Flow`] image: ±1.27 mm
+/// about mid-grey (128), 0.01 mm a level (a third of a pixel of the simulated sensors).
+pub const FLOW_LEVELS_PER_MM: f64 = 100.0;
+
 impl Modality {
+    /// The paper's three image modalities.
     pub const ALL: [Modality; 3] = [Modality::RgbMarker, Modality::Rgb, Modality::Marker];
+    /// Every modality a force model can read.
+    pub const ANY: [Modality; 4] = [
+        Modality::RgbMarker,
+        Modality::Rgb,
+        Modality::Marker,
+        Modality::Flow,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
             Modality::RgbMarker => "rgb+marker",
             Modality::Rgb => "rgb",
             Modality::Marker => "marker",
+            Modality::Flow => "flow",
         }
     }
 
@@ -38,14 +61,24 @@ impl Modality {
             Modality::RgbMarker => "R+M",
             Modality::Rgb => "R",
             Modality::Marker => "M",
+            Modality::Flow => "D",
         }
     }
 
+    /// Whether one frame alone makes the network's image (the paper's modalities); marker
+    /// displacement needs the trajectory's reference frame (`data::FramePrep`).
+    pub fn per_frame(self) -> bool {
+        self != Modality::Flow
+    }
+
+    /// The modality's image of one frame. [`Modality::Flow`] cannot be made from one frame:
+    /// it gives mid-grey (no displacement); use `data::FramePrep`.
     pub fn apply(self, img: &RgbImage, p: &MarkerParams) -> RgbImage {
         match self {
             Modality::RgbMarker => img.clone(),
             Modality::Rgb => inpaint_telea(img, &marker_mask(img, p), p.inpaint_radius_px),
             Modality::Marker => marker_image(img, p),
+            Modality::Flow => RgbImage::from_pixel(img.width(), img.height(), image::Rgb([128; 3])),
         }
     }
 }
@@ -54,11 +87,13 @@ impl std::str::FromStr for Modality {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         let t = s.trim().to_ascii_lowercase();
-        Modality::ALL
+        Modality::ANY
             .into_iter()
             .find(|m| m.name() == t || m.paper_name().to_ascii_lowercase() == t)
             .ok_or_else(|| {
-                format!("unknown modality {s:?}: use rgb+marker (R+M), rgb (R) or marker (M)")
+                format!(
+                    "unknown modality {s:?}: use rgb+marker (R+M), rgb (R), marker (M) or flow (D, marker displacement)"
+                )
             })
     }
 }

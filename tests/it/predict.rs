@@ -215,6 +215,83 @@ fn a_replay_gives_eval_s_forces_frame_for_frame() {
     assert_eq!(s.vs_sim.as_ref().map(|v| v.n), Some(r.n));
 }
 
+/// A marker-displacement (`flow`) model: the replay tracks each trajectory's markers from its
+/// first frame with the recording's optics, as the trainer's loader does, so it gives eval's
+/// forces frame for frame too. (An untrained model: only the inputs' agreement matters.)
+#[test]
+fn a_replay_of_a_flow_model_gives_eval_s_forces_frame_for_frame() {
+    let f = fixture();
+    let spec = ImageSpec {
+        modality: Modality::Flow,
+        ..SPEC
+    };
+    // Two copies of one untrained model (the same seed): one for eval, one to replay with.
+    let model = ForceModel::untrained(&tiny_config(), spec, 40);
+    let set = data::load_eval(&f.data, &spec, false).unwrap();
+    // The flow images move: the markers were tracked through the presses.
+    let moved = set
+        .trajectories
+        .iter()
+        .flat_map(|t| {
+            t.pixels
+                .chunks_exact(3)
+                .map(|p| p[0].abs_diff(128).max(p[1].abs_diff(128)))
+        })
+        .max()
+        .unwrap();
+    assert!(
+        moved >= 10,
+        "the largest displacement is {moved} levels (0.01 mm each)"
+    );
+    let p = eval::predict(&model, &set);
+    // Its outputs follow its input, so agreeing frame for frame means the same inputs.
+    let (lo, hi) = p.pred.iter().fold((f64::MAX, f64::MIN), |(lo, hi), f| {
+        (lo.min(f[0]), hi.max(f[0]))
+    });
+    assert!(
+        hi - lo > 1e-3,
+        "the untrained model's Fx spans only {} N",
+        hi - lo
+    );
+
+    let predictor = Predictor::new(
+        ForceModel::untrained(&tiny_config(), spec, 40),
+        PredictorOptions {
+            stride: Some(1),
+            ..PredictorOptions::default()
+        },
+    )
+    .unwrap();
+    let replay = Replay {
+        dir: f.data.clone(),
+        speed: None,
+        seq_len: 8,
+        live: None,
+    };
+    let s = session::run(
+        predictor,
+        Arc::new(Feed::new(true)),
+        move |f| replay.run(f),
+        &mut quiet(),
+    )
+    .unwrap();
+    assert_eq!(s.estimates.len(), p.pred.len());
+    // `eval::predict` lists frames trajectory by trajectory in frame order, as the replay
+    // estimates them.
+    let mut want: Vec<(usize, usize, [f64; 3])> = (0..p.pred.len())
+        .map(|k| (p.traj[k], p.frame[k], p.pred[k]))
+        .collect();
+    want.sort_by_key(|w| (w.0, w.1));
+    let mut worst = 0f64;
+    for ((traj, _seq, est), (t, _i, pred)) in s.estimates.iter().zip(&want) {
+        assert_eq!(traj, t);
+        for (a, b) in est.force_n.iter().zip(pred) {
+            worst = worst.max((a - b).abs());
+        }
+    }
+    assert!(worst < 1e-4, "replay differs from eval by up to {worst} N");
+}
+
 #[test]
 fn live_on_the_simulated_rig_every_frame_is_estimated_and_the_live_view_shows_it() {
     let f = fixture();
