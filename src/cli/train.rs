@@ -103,6 +103,9 @@ pub struct ForceArgs {
     /// The control group: the encoder's embedding straight into the MLP.
     #[arg(long)]
     pub no_lstm: bool,
+    /// What the model reads: the paper's `rgb+marker` (R+M), `rgb` (R) or `marker` (M), or
+    /// `flow` (D: the markers' displacement from each trajectory's first frame, in mm on a fixed
+    /// grid; train it on the source's recordings, no translation needed).
     #[arg(long, default_value = "rgb+marker")]
     pub modality: Modality,
     /// ResNet depth of the encoder: 18, 34 or 50.

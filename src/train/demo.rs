@@ -391,6 +391,16 @@ pub fn run(
                 train_force(&src, &plan.force, "source-only", m, &dir)?;
                 models.push(("source-only".to_owned(), dir));
             }
+            // The marker-displacement method: the source's own recordings and labels, no
+            // translation (the displacement in mm does not depend on the sensor's look).
+            let flow = ImageSpec {
+                modality: Modality::Flow,
+                ..rgbm
+            };
+            let src = data::load_labelled(&src_dir, &flow, false)?.seen_only(&split);
+            let dir = out.join("models/marker-flow");
+            train_force(&src, &plan.force, METHOD_MARKER_FLOW, Modality::Flow, &dir)?;
+            models.push((METHOD_MARKER_FLOW.to_owned(), dir));
             Ok(models)
         });
 
@@ -483,6 +493,10 @@ pub fn run(
     eprintln!("      total {:.0} s", t0.elapsed().as_secs_f64());
     Ok(table)
 }
+
+/// The marker-displacement method's name in result tables: a force model on
+/// [`Modality::Flow`], trained on the source sensor's recordings without translation.
+pub const METHOD_MARKER_FLOW: &str = "marker flow";
 
 /// Trains one force model into `dir` and says how it went (no progress bar: trainings run side
 /// by side).
