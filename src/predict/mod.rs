@@ -60,7 +60,7 @@ use std::time::{Duration, Instant};
 use anyhow::bail;
 use serde::Serialize;
 
-use crate::train::data::{FramePrep, ImageSpec, prepare_image};
+use crate::train::data::{FramePrep, ImageSpec};
 use crate::train::force::{ForceModel, ModelInfo};
 use crate::train::modality::MarkerParams;
 
@@ -128,9 +128,9 @@ pub struct Predictor {
     model: ForceModel,
     marker: MarkerParams,
     optics: Option<rig_core::optics::OpticsConfig>,
-    /// The `flow` modality's marker tracker for the trajectory under way (made at its first
-    /// frame).
-    flow: Option<FramePrep>,
+    /// How the trajectory under way's frames become the network's input (made at its first
+    /// frame: the `flow` modality's reference).
+    prep: Option<FramePrep>,
     stride: usize,
     /// Embeddings of the last (T−1)·stride + 1 frames since the trajectory started, oldest
     /// first.
@@ -161,7 +161,7 @@ impl Predictor {
             model,
             marker: opts.marker,
             optics: opts.optics,
-            flow: None,
+            prep: None,
             stride,
             ring: VecDeque::new(),
             tare_frames: opts.tare_frames,
@@ -199,7 +199,7 @@ impl Predictor {
     /// window's stride changes (replay: ⌊n/T⌋ of the trajectory). The tare is kept.
     pub fn start_trajectory(&mut self, stride: Option<usize>) {
         self.ring.clear();
-        self.flow = None;
+        self.prep = None;
         if let Some(s) = stride {
             self.stride = s.max(1);
         }
@@ -208,11 +208,13 @@ impl Predictor {
     /// Marker sizes of the frames to come (a recording's own, in replay).
     pub fn set_marker(&mut self, marker: MarkerParams) {
         self.marker = marker;
+        self.prep = None;
     }
 
     /// Optics of the frames to come (a recording's own, in replay), for the `flow` modality.
     pub fn set_optics(&mut self, optics: rig_core::optics::OpticsConfig) {
         self.optics = Some(optics);
+        self.prep = None;
     }
 
     /// Where the last frame's time went.
@@ -233,23 +235,18 @@ impl Predictor {
     pub fn push(&mut self, frame: &image::RgbImage, t_ns: u64) -> anyhow::Result<Option<Estimate>> {
         self.check_frame_size(frame.width(), frame.height())?;
         let t0 = Instant::now();
-        let spec = self.spec();
-        let px = if spec.modality.per_frame() {
-            prepare_image(frame, &spec, &self.marker)
-        } else {
-            // Marker displacement: the trajectory's first frame is its reference.
-            if self.flow.is_none() {
-                let optics = self.optics.as_ref().ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "a {} model tracks the camera's markers: it needs the sensor's [optics] \
-                         (give --config with the rig's config)",
-                        spec.modality
-                    )
-                })?;
-                self.flow = Some(FramePrep::new(&spec, self.marker, Some(optics))?);
+        if self.prep.is_none() {
+            let spec = self.spec();
+            if !spec.modality.per_frame() && self.optics.is_none() {
+                bail!(
+                    "a {} model tracks the camera's markers: it needs the sensor's [optics] \
+                     (give --config with the rig's config)",
+                    spec.modality
+                );
             }
-            self.flow.as_mut().expect("made above").next(frame)?
-        };
+            self.prep = Some(FramePrep::new(&spec, self.marker, self.optics.as_ref())?);
+        }
+        let px = self.prep.as_mut().expect("made above").next(frame)?;
         self.last_times.prepare = t0.elapsed();
         Ok(self.push_prepared(&px, t_ns))
     }

@@ -534,23 +534,18 @@ impl FramePrep {
         let Some(flow) = self.flow.as_mut() else {
             return Ok(prepare_image(img, &self.spec, &self.params));
         };
-        match flow.tracker.as_mut() {
-            None => {
-                let t = crate::markers::Tracker::new(img, &flow.geometry)
-                    .map_err(anyhow::Error::msg)
-                    .context("the reference (first) frame")?;
-                flow.tracker = Some(t);
-            }
+        let tracker = match flow.tracker.as_mut() {
             Some(t) => {
                 t.update(img).map_err(anyhow::Error::msg)?;
+                t
             }
-        }
-        let field = flow
-            .tracker
-            .as_ref()
-            .map(|t| t.grid(&flow.grid))
-            .unwrap_or_default();
-        Ok(flow_image(&field))
+            None => flow.tracker.insert(
+                crate::markers::Tracker::new(img, &flow.geometry)
+                    .map_err(anyhow::Error::msg)
+                    .context("the reference (first) frame")?,
+            ),
+        };
+        Ok(flow_image(&tracker.grid(&flow.grid)))
     }
 }
 

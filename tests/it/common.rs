@@ -43,6 +43,21 @@ pub fn one_rig_at_a_time() -> MutexGuard<'static, ()> {
     RIG.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// `rig run --indenter INDENTER --config CONFIG --out OUT --limit N --speed-factor 20`, one
+/// rig at a time; panics with the run's output when it fails.
+pub fn record_sim_run(config: &Path, indenter: &str, out: &Path, trajectories: usize) {
+    let _rig = one_rig_at_a_time();
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["run", "--indenter", indenter, "--config"])
+        .arg(config)
+        .arg("--out")
+        .arg(out)
+        .args(["--limit", &trajectories.to_string(), "--speed-factor", "20"])
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", output_text(&run));
+}
+
 /// Drains `stream` into `each` once its device has gone quiet (muted): until the reader has
 /// delivered every sample the device sent (`sent`, read at two polls 50 ms apart that agree, so
 /// a batch the device built just before the mute is counted too). Waits in clock time, up to

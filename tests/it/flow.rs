@@ -5,7 +5,6 @@
 //! flow images must describe the same gel motion, in the slide's direction.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use rig::train::data::{ImageSpec, load_eval, load_labelled};
 use rig::train::modality::{FLOW_LEVELS_PER_MM, Modality};
@@ -31,19 +30,6 @@ fn narrowed(dir: &Path, name: &str) -> PathBuf {
     let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, text).unwrap();
     path
-}
-
-fn record(config: &Path, out: &Path) {
-    let _rig = common::one_rig_at_a_time();
-    let run = Command::new(env!("CARGO_BIN_EXE_rig"))
-        .args(["run", "--indenter", "sphere", "--config"])
-        .arg(config)
-        .arg("--out")
-        .arg(out)
-        .args(["--speed-factor", "20"])
-        .output()
-        .unwrap();
-    assert!(run.status.success(), "{}", common::output_text(&run));
 }
 
 /// Each frame's mean displacement over the grid, mm (x, y), decoded from the flow image.
@@ -77,7 +63,8 @@ fn two_sensors_with_different_markers_and_cameras_give_the_same_marker_flow() {
     let mut flows = Vec::new();
     for name in ["sim-source", "sim-fine"] {
         let out = dir.path().join(name);
-        record(&narrowed(dir.path(), name), &out);
+        // Both trajectories of the narrowed plan.
+        common::record_sim_run(&narrowed(dir.path(), name), "sphere", &out, 2);
         // sim-fine is a target: its forces load for evaluation only.
         let trajectories = if name == "sim-source" {
             load_labelled(&out, &spec, false).unwrap().trajectories

@@ -9,7 +9,6 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use rig::record::reader::{Message, messages};
 use rig::simrig::sim::optics::{marker_centres_mm, mm_to_px};
@@ -50,20 +49,6 @@ fn narrowed_config(dir: &Path, name: &str, depth_mm: f64, directions: &[f64]) ->
     let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, text).unwrap();
     path
-}
-
-/// Runs the plan of `config` with `indenter` into `out`, every trajectory.
-fn record(config: &Path, indenter: &str, out: &Path, trajectories: usize) {
-    let _rig = common::one_rig_at_a_time();
-    let run = Command::new(env!("CARGO_BIN_EXE_rig"))
-        .args(["run", "--indenter", indenter, "--config"])
-        .arg(config)
-        .arg("--out")
-        .arg(out)
-        .args(["--limit", &trajectories.to_string(), "--speed-factor", "20"])
-        .output()
-        .unwrap();
-    assert!(run.status.success(), "{}", common::output_text(&run));
 }
 
 /// One recorded trajectory: each frame's image by sequence number, and each frame's stage.
@@ -147,7 +132,7 @@ fn recorded_frames_show_each_sensors_own_marker_pattern() {
         let cfg = narrowed_config(tmp.path(), name, 0.4, &[0.0]);
         sensors.push((name, RigConfig::load(&cfg).unwrap().optics.unwrap()));
         let out = tmp.path().join(name);
-        record(&cfg, "sphere", &out, 1);
+        common::record_sim_run(&cfg, "sphere", &out, 1);
         let t = read_trajectories(&out).remove(0);
         assert!(t.frames.len() > 50, "{name}: {} frames", t.frames.len());
         first_frames.push(t.frames.values().next().unwrap().clone());
@@ -214,7 +199,7 @@ fn markers_move_with_the_gel_along_the_shear_direction() {
     let directions = [0.0, 90.0, 180.0, 270.0];
     let cfg = narrowed_config(tmp.path(), "sim-source", 0.6, &directions);
     let out = tmp.path().join("run");
-    record(&cfg, "sphere", &out, directions.len());
+    common::record_sim_run(&cfg, "sphere", &out, directions.len());
     let optics = RigConfig::load(&cfg).unwrap().optics.unwrap();
     let spacing_px = optics.markers.spacing_mm / optics.mm_per_px;
     let trajectories = read_trajectories(&out);

@@ -106,9 +106,7 @@ pub(super) fn best<'a>(
     group: &str,
     axis: usize,
 ) -> Option<&'a Aggregate> {
-    agg.iter()
-        .filter(|a| a.method == method && a.group == group)
-        .min_by(|a, b| a.judged_mae(axis).0.total_cmp(&b.judged_mae(axis).0))
+    lowest(agg, method, group, |a| a.judged_mae(axis).0)
 }
 
 /// The best modality by the MAE over every frame (the paper's measure, % of range).
@@ -118,9 +116,19 @@ fn best_over_all_frames<'a>(
     group: &str,
     axis: usize,
 ) -> Option<&'a Aggregate> {
+    lowest(agg, method, group, |a| a.mae[axis])
+}
+
+/// The modality of `method` in `group` with the lowest `error`.
+fn lowest<'a>(
+    agg: &'a [Aggregate],
+    method: &str,
+    group: &str,
+    error: impl Fn(&Aggregate) -> f64,
+) -> Option<&'a Aggregate> {
     agg.iter()
         .filter(|a| a.method == method && a.group == group)
-        .min_by(|a, b| a.mae[axis].total_cmp(&b.mae[axis]))
+        .min_by(|a, b| error(a).total_cmp(&error(b)))
 }
 
 const AXES: [&str; 3] = ["Fx", "Fy", "Fz"];
