@@ -57,12 +57,14 @@
 
 mod detect;
 mod grid;
+mod shading;
 mod track;
 
 use rig_core::optics::{MarkerPattern, OpticsConfig};
 
 pub use detect::{Detector, FLOOR_LEVELS, Marker, detect};
 pub use grid::{GridSpec, MAX_GRID_CELLS, MIN_WEIGHT, resample, resample_points};
+pub use shading::{Shading, WINDOW_HALF_MM};
 pub use track::{FrameSummary, TrackedMarker, Tracker};
 
 /// Whether the dots are darker or lighter than the gel around them.

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
-use super::modality::{FLOW_LEVELS_PER_MM, MarkerParams, Modality};
+use super::modality::{FLOW_LEVELS_PER_MM, MarkerParams, Modality, SHADING_LEVELS};
 use crate::record::channels::{TOPIC_IMAGE, TOPIC_PAIRED};
 use crate::record::manifest::{Manifest, Status};
 use crate::record::reader::{self, Message};
@@ -486,6 +486,7 @@ struct Flow {
     geometry: crate::markers::SensorGeometry,
     grid: crate::markers::GridSpec,
     tracker: Option<crate::markers::Tracker>,
+    shading: Option<crate::markers::Shading>,
 }
 
 /// The gel area a [`Modality::Flow`] image covers, mm (x, y), centred on the image centre:
@@ -520,6 +521,7 @@ impl FramePrep {
                 geometry,
                 grid,
                 tracker: None,
+                shading: None,
             })
         };
         Ok(Self {
@@ -545,20 +547,40 @@ impl FramePrep {
                     .context("the reference (first) frame")?,
             ),
         };
-        Ok(flow_image(&tracker.grid(&flow.grid)))
+        let field = tracker.grid(&flow.grid);
+        if self.spec.modality != Modality::FlowShading {
+            return Ok(flow_image(&field, &[]));
+        }
+        let shading = match flow.shading.as_mut() {
+            Some(s) => s,
+            None => flow.shading.insert(
+                crate::markers::Shading::new(img, &flow.geometry, &flow.grid)
+                    .map_err(anyhow::Error::msg)?,
+            ),
+        };
+        let shade = shading.field(img).map_err(anyhow::Error::msg)?;
+        Ok(flow_image(&field, &shade))
     }
 }
 
-/// A displacement field (`[dx, dy]` mm a cell, row-major) as a [`Modality::Flow`] image.
-pub fn flow_image(field: &[[f32; 2]]) -> Vec<u8> {
+/// A displacement field (`[dx, dy]` mm a cell, row-major) as a [`Modality::Flow`] image, with
+/// the shading change (one value a cell, [`SHADING_LEVELS`]) in blue for
+/// [`Modality::FlowShading`]; blue is mid-grey where `shading` has no value (D).
+pub fn flow_image(field: &[[f32; 2]], shading: &[f32]) -> Vec<u8> {
     let level = |v: f32| {
         (128.0 + f64::from(v) * FLOW_LEVELS_PER_MM)
             .round()
             .clamp(0.0, 255.0) as u8
     };
+    let shade = |k: usize| {
+        shading.get(k).map_or(128, |&v| {
+            (f64::from(v) * SHADING_LEVELS).round().clamp(0.0, 255.0) as u8
+        })
+    };
     field
         .iter()
-        .flat_map(|d| [level(d[0]), level(d[1]), 128])
+        .enumerate()
+        .flat_map(|(k, d)| [level(d[0]), level(d[1]), shade(k)])
         .collect()
 }
 

@@ -13,6 +13,11 @@
 //!   depend on the marker pitch, the LEDs or the camera's turn, so it carries from one sensor to
 //!   another without translation. It needs the trajectory's frames in order:
 //!   `data::FramePrep` makes it.
+//! - D+S (`flow+shading`): D with the blue channel carrying how much the gel's shading has
+//!   changed since the first frame ([`crate::markers::Shading`], [`SHADING_LEVELS`]): the normal
+//!   press, which the markers' in-plane motion hardly shows. Unlike D it depends on how strongly
+//!   a sensor's LEDs shade a slope (×0.6 to ×2.7 of the source's on the simulated targets), so
+//!   it carries normal force between sensors whose shading is alike, and D carries shear.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -30,22 +35,32 @@ pub enum Modality {
     Marker,
     #[serde(rename = "flow")]
     Flow,
+    #[serde(rename = "flow+shading")]
+    FlowShading,
 }
 
 /// Image levels per millimetre of marker displacement in a [`Modality::Flow`] image: ±1.27 mm
 /// about mid-grey (128), 0.01 mm a level (a third of a pixel of the simulated sensors).
 pub const FLOW_LEVELS_PER_MM: f64 = 100.0;
 
+/// Blue levels per unit of relative shading change in a [`Modality::FlowShading`] image
+/// ([`crate::markers::Shading`]): 0 is none, 255 a change of 51 %. The simulated sensors' deepest
+/// presses reach 0.2–0.35 (0.86 on sim-third, whose dark gel makes any change large).
+pub const SHADING_LEVELS: f64 = 500.0;
+
 impl Modality {
     /// The paper's three image modalities.
     pub const ALL: [Modality; 3] = [Modality::RgbMarker, Modality::Rgb, Modality::Marker];
     /// Every modality a force model can read.
-    pub const ANY: [Modality; 4] = [
+    pub const ANY: [Modality; 5] = [
         Modality::RgbMarker,
         Modality::Rgb,
         Modality::Marker,
         Modality::Flow,
+        Modality::FlowShading,
     ];
+    /// The marker-displacement method's modalities.
+    pub const MARKERS: [Modality; 2] = [Modality::Flow, Modality::FlowShading];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -53,6 +68,7 @@ impl Modality {
             Modality::Rgb => "rgb",
             Modality::Marker => "marker",
             Modality::Flow => "flow",
+            Modality::FlowShading => "flow+shading",
         }
     }
 
@@ -62,23 +78,27 @@ impl Modality {
             Modality::Rgb => "R",
             Modality::Marker => "M",
             Modality::Flow => "D",
+            Modality::FlowShading => "D+S",
         }
     }
 
     /// Whether one frame alone makes the network's image (the paper's modalities); marker
     /// displacement needs the trajectory's reference frame (`data::FramePrep`).
     pub fn per_frame(self) -> bool {
-        self != Modality::Flow
+        !Self::MARKERS.contains(&self)
     }
 
-    /// The modality's image of one frame. [`Modality::Flow`] cannot be made from one frame:
-    /// it gives mid-grey (no displacement); use `data::FramePrep`.
+    /// The modality's image of one frame. [`Modality::Flow`] and [`Modality::FlowShading`]
+    /// cannot be made from one frame: they give mid-grey (no displacement); use
+    /// `data::FramePrep`.
     pub fn apply(self, img: &RgbImage, p: &MarkerParams) -> RgbImage {
         match self {
             Modality::RgbMarker => img.clone(),
             Modality::Rgb => inpaint_telea(img, &marker_mask(img, p), p.inpaint_radius_px),
             Modality::Marker => marker_image(img, p),
-            Modality::Flow => RgbImage::from_pixel(img.width(), img.height(), image::Rgb([128; 3])),
+            Modality::Flow | Modality::FlowShading => {
+                RgbImage::from_pixel(img.width(), img.height(), image::Rgb([128; 3]))
+            }
         }
     }
 }
@@ -92,7 +112,7 @@ impl std::str::FromStr for Modality {
             .find(|m| m.name() == t || m.paper_name().to_ascii_lowercase() == t)
             .ok_or_else(|| {
                 format!(
-                    "unknown modality {s:?}: use rgb+marker (R+M), rgb (R), marker (M) or flow (D, marker displacement)"
+                    "unknown modality {s:?}: use rgb+marker (R+M), rgb (R), marker (M), flow (D, marker displacement) or flow+shading (D+S, with the shading change)"
                 )
             })
     }

@@ -215,16 +215,20 @@ fn a_replay_gives_eval_s_forces_frame_for_frame() {
     assert_eq!(s.vs_sim.as_ref().map(|v| v.n), Some(r.n));
 }
 
-/// A marker-displacement (`flow`) model: the replay tracks each trajectory's markers from its
-/// first frame with the recording's optics, as the trainer's loader does, so it gives eval's
-/// forces frame for frame too. (An untrained model: only the inputs' agreement matters.)
+/// A marker-displacement model (`flow`, and `flow+shading` with the shading change in blue):
+/// the replay tracks each trajectory's markers from its first frame with the recording's
+/// optics, as the trainer's loader does, so it gives eval's forces frame for frame too. (An
+/// untrained model: only the inputs' agreement matters.)
 #[test]
 fn a_replay_of_a_flow_model_gives_eval_s_forces_frame_for_frame() {
     let f = fixture();
-    let spec = ImageSpec {
-        modality: Modality::Flow,
-        ..SPEC
-    };
+    for modality in Modality::MARKERS {
+        replay_equals_eval(f, modality);
+    }
+}
+
+fn replay_equals_eval(f: &Fixture, modality: Modality) {
+    let spec = ImageSpec { modality, ..SPEC };
     // Two copies of one untrained model (the same seed): one for eval, one to replay with.
     let model = ForceModel::untrained(&tiny_config(), spec, 40);
     let set = data::load_eval(&f.data, &spec, false).unwrap();
@@ -241,8 +245,26 @@ fn a_replay_of_a_flow_model_gives_eval_s_forces_frame_for_frame() {
         .unwrap();
     assert!(
         moved >= 10,
-        "the largest displacement is {moved} levels (0.01 mm each)"
+        "{modality}: the largest displacement is {moved} levels (0.01 mm each)"
     );
+    // Blue: mid-grey for D; for D+S the shading change, none at a trajectory's first frame and
+    // some in its presses.
+    let blue: Vec<u8> = set
+        .trajectories
+        .iter()
+        .flat_map(|t| t.pixels.chunks_exact(3).map(|p| p[2]))
+        .collect();
+    if modality == Modality::Flow {
+        assert!(blue.iter().all(|&b| b == 128));
+    } else {
+        let first = &set.trajectories[0].pixels[..spec.frame_bytes()];
+        assert!(first.chunks_exact(3).all(|p| p[2] == 0), "{modality}");
+        let most = blue.iter().max().copied().unwrap_or(0);
+        assert!(
+            most >= 20,
+            "{modality}: the largest shading change is {most} levels"
+        );
+    }
     let p = eval::predict(&model, &set);
     // Its outputs follow its input, so agreeing frame for frame means the same inputs.
     let (lo, hi) = p.pred.iter().fold((f64::MAX, f64::MIN), |(lo, hi), f| {
@@ -289,7 +311,10 @@ fn a_replay_of_a_flow_model_gives_eval_s_forces_frame_for_frame() {
             worst = worst.max((a - b).abs());
         }
     }
-    assert!(worst < 1e-4, "replay differs from eval by up to {worst} N");
+    assert!(
+        worst < 1e-4,
+        "{modality}: replay differs from eval by up to {worst} N"
+    );
 }
 
 #[test]

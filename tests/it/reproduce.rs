@@ -41,11 +41,24 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
 
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("results/rows.json")).unwrap()).unwrap();
-    // 3 methods × 3 modalities, for the seen and the unseen group at least.
+    // The paper's 3 methods × its 3 modalities and the 2 marker-displacement methods × D and
+    // D+S, for the seen and the unseen group at least.
     let agg = json["aggregate"].as_array().unwrap();
     for group in ["seen", "unseen"] {
         let rows: Vec<_> = agg.iter().filter(|a| a["group"] == group).collect();
-        assert_eq!(rows.len(), 9, "{group}: {rows:?}");
+        assert_eq!(rows.len(), 13, "{group}: {rows:?}");
+        let modalities = |method: &str| -> Vec<&str> {
+            let mut m: Vec<&str> = rows
+                .iter()
+                .filter(|r| r["method"] == method)
+                .map(|r| r["modality"].as_str().unwrap())
+                .collect();
+            m.sort();
+            m
+        };
+        assert_eq!(modalities("TransForce"), ["M", "R", "R+M"]);
+        assert_eq!(modalities("marker flow"), ["D", "D+S"]);
+        assert_eq!(modalities("marker flow (no LSTM)"), ["D", "D+S"]);
         for r in rows {
             assert_eq!(r["seeds"], 1);
             for a in 0..3 {
@@ -72,7 +85,8 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
         }
     }
     let verdicts = json["verdicts"].as_array().unwrap();
-    assert_eq!(verdicts.len(), 6, "{verdicts:?}");
+    // The paper's 6 claims, the LSTM's for marker flow (2) and marker flow's own 4.
+    assert_eq!(verdicts.len(), 12, "{verdicts:?}");
     for v in verdicts {
         let o = v["outcome"].as_str().unwrap();
         assert!(
@@ -101,6 +115,8 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
             ("source-only", [214, 39, 40]),
             ("TransForce (no LSTM)", [44, 160, 44]),
             ("TransForce", [31, 119, 180]),
+            ("marker flow (no LSTM)", [148, 103, 189]),
+            ("marker flow", [255, 127, 14]),
         ] {
             let n = img.pixels().filter(|p| p.0 == rgb).count();
             assert!(n > 200, "{file}: {n} pixels of {method}'s colour");
@@ -120,7 +136,7 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
         v
     };
     let before = models(&out);
-    assert_eq!(before.len(), 9);
+    assert_eq!(before.len(), 13);
     let second = reproduce(&out);
     assert!(second.status.success(), "{}", common::output_text(&second));
     let stderr = String::from_utf8_lossy(&second.stderr);

@@ -1,7 +1,7 @@
 //! The reproduction's figures, as PNG: the error distributions by force range (the paper's
-//! violin figure) and predicted against true force over time for a few trajectories. Each
-//! axis shows the modality TransForce does best with on that axis (seen group), for every
-//! method alike, so the methods are compared on the same images.
+//! violin figure) and predicted against true force over time for a few trajectories. On each
+//! axis each method is shown with the modality it does best with there (seen group), named in
+//! the legend: the paper's methods read R, M or R+M, the marker-displacement ones D or D+S.
 
 use std::path::Path;
 
@@ -23,21 +23,51 @@ pub struct ModelPredictions {
     pub p: Predictions,
 }
 
-/// The modality each axis's figures show: TransForce's lowest mean MAE on the seen group
-/// (the first modality when there are no TransForce rows).
-pub fn figure_modalities(agg: &[Aggregate], fallback: &str) -> [String; 3] {
-    std::array::from_fn(|a| {
-        best(agg, "TransForce", "seen", a)
-            .map(|b| b.modality.clone())
-            .unwrap_or_else(|| fallback.to_owned())
-    })
+/// The modality each method's figures show on each axis.
+pub struct Shown(Vec<(String, [String; 3])>);
+
+impl Shown {
+    /// `method`'s modality on `axis`; `None` where it has no rows.
+    fn of(&self, method: &str, axis: usize) -> Option<&str> {
+        self.0
+            .iter()
+            .find(|(m, _)| m == method)
+            .map(|(_, a)| a[axis].as_str())
+    }
+}
+
+/// Each method's modality of lowest mean judged MAE on the seen group, per axis
+/// ([`best`]).
+pub fn figure_modalities(agg: &[Aggregate]) -> Shown {
+    Shown(
+        METHODS
+            .iter()
+            .filter_map(|m| {
+                let b: [Option<&Aggregate>; 3] =
+                    std::array::from_fn(|a| best(agg, m.name, "seen", a));
+                b.iter().all(Option::is_some).then(|| {
+                    (
+                        m.name.to_owned(),
+                        b.map(|x| x.map(|x| x.modality.clone()).unwrap_or_default()),
+                    )
+                })
+            })
+            .collect(),
+    )
 }
 
 /// The colour of a method in every figure.
 fn colour(method: &str) -> RGBColor {
-    match METHODS.iter().position(|m| m.0 == method) {
-        Some(0) => RGBColor(214, 39, 40),
-        Some(1) => RGBColor(44, 160, 44),
+    // "method (modality)", or the method alone.
+    let name = match method.rsplit_once(" (") {
+        Some((m, _)) if METHODS.iter().any(|x| x.name == m) => m,
+        _ => method,
+    };
+    match name {
+        "source-only" => RGBColor(214, 39, 40),
+        "TransForce (no LSTM)" => RGBColor(44, 160, 44),
+        "marker flow (no LSTM)" => RGBColor(148, 103, 189),
+        "marker flow" => RGBColor(255, 127, 14),
         _ => RGBColor(31, 119, 180),
     }
 }
@@ -73,21 +103,23 @@ fn quantile(v: &mut [f64], q: f64) -> f64 {
     v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
-/// Absolute errors of every method (seeds pooled) on `axis` with the axis's modality, in
-/// `group`, as (|true force|, |error|) pairs per method in [`METHODS`] order.
+/// Absolute errors of every method (seeds pooled) on `axis` with its shown modality, in
+/// `group`, as (|true force|, |error|) pairs per method in [`METHODS`] order, named
+/// "method (modality)".
 fn errors(
     preds: &[ModelPredictions],
-    modality: &str,
+    shown: &Shown,
     axis: usize,
     group: &str,
     split: &Split,
 ) -> Vec<(String, Vec<(f64, f64)>)> {
     METHODS
         .iter()
-        .map(|(method, ..)| {
+        .filter_map(|m| Some((m.name, shown.of(m.name, axis)?)))
+        .map(|(method, modality)| {
             let pts = preds
                 .iter()
-                .filter(|m| m.method == *method && m.modality == modality)
+                .filter(|m| m.method == method && m.modality == modality)
                 .flat_map(|m| {
                     (0..m.p.pred.len())
                         .filter(|&i| split.group(&m.p.indenter[i]) == group)
@@ -98,7 +130,7 @@ fn errors(
                 })
                 .filter(|(t, e)| t.is_finite() && e.is_finite())
                 .collect();
-            (method.to_string(), pts)
+            (format!("{method} ({modality})"), pts)
         })
         .collect()
 }
@@ -108,7 +140,7 @@ fn errors(
 pub fn error_violins(
     path: &Path,
     preds: &[ModelPredictions],
-    modalities: &[String; 3],
+    shown: &Shown,
     split: &Split,
 ) -> anyhow::Result<()> {
     const BINS: usize = 4;
@@ -123,7 +155,7 @@ pub fn error_violins(
         for (gi, group) in groups.iter().enumerate() {
             for a in 0..3 {
                 let panel = &panels[gi * 3 + a];
-                let errs = errors(preds, &modalities[a], a, group, split);
+                let errs = errors(preds, shown, a, group, split);
                 let mut forces: Vec<f64> =
                     errs.iter().flat_map(|e| e.1.iter().map(|p| p.0)).collect();
                 let mut all_err: Vec<f64> =
@@ -132,7 +164,7 @@ pub fn error_violins(
                 let ymax = quantile(&mut all_err, 0.98).max(1e-3) * 1.05;
                 violin_panel(
                     panel,
-                    &format!("{} ({}), {group}", AXES[a], modalities[a]),
+                    &format!("{}, {group}", AXES[a]),
                     &errs,
                     (top, ymax),
                     BINS,
@@ -257,7 +289,7 @@ pub fn pick_trajectories(ids: &[(String, String)], split: &Split, per_group: usi
 pub fn force_over_time(
     path: &Path,
     preds: &[ModelPredictions],
-    modalities: &[String; 3],
+    shown: &Shown,
     ids: &[(String, String)],
     picks: &[usize],
     fps: f64,
@@ -274,10 +306,14 @@ pub fn force_over_time(
             for a in 0..3 {
                 let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
                 let mut truth: Vec<(f64, f64)> = Vec::new();
-                for (method, ..) in METHODS {
-                    let Some(m) = preds.iter().find(|m| {
-                        m.method == method && m.modality == modalities[a] && m.seed == seed
-                    }) else {
+                for method in METHODS.map(|m| m.name) {
+                    let Some(modality) = shown.of(method, a) else {
+                        continue;
+                    };
+                    let Some(m) = preds
+                        .iter()
+                        .find(|m| m.method == method && m.modality == modality && m.seed == seed)
+                    else {
                         continue;
                     };
                     let mut pts: Vec<(usize, f64, f64)> = (0..m.p.pred.len())
@@ -289,14 +325,14 @@ pub fn force_over_time(
                         truth = pts.iter().map(|p| (p.0 as f64 / fps, p.2)).collect();
                     }
                     series.push((
-                        method.to_owned(),
+                        format!("{method} ({modality})"),
                         pts.iter().map(|p| (p.0 as f64 / fps, p.1)).collect(),
                     ));
                 }
                 let (ind, id) = &ids[traj];
                 time_panel(
                     &panels[row * 3 + a],
-                    &format!("{ind} {id}: {} ({})", AXES[a], modalities[a]),
+                    &format!("{ind} {id}: {}", AXES[a]),
                     &truth,
                     &series,
                     row == 0 && a == 0,

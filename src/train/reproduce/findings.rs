@@ -8,6 +8,7 @@ use serde::Serialize;
 use super::{
     METHODS, PAPER_FID_AFTER, PAPER_FID_BEFORE, PAPER_MAE_N, PAPER_R2, PAPER_RANGE_N, Reproduction,
 };
+use crate::train::demo::METHOD_MARKER_FLOW as MARKER_FLOW;
 use crate::train::report::{FidRow, Row};
 
 /// One row aggregated over seeds: mean and sample standard deviation.
@@ -87,7 +88,7 @@ pub fn aggregate(rows: &[Row]) -> Vec<Aggregate> {
             }
         })
         .collect();
-    let order = |m: &str| METHODS.iter().position(|x| x.0 == m).unwrap_or(9);
+    let order = |m: &str| METHODS.iter().position(|x| x.name == m).unwrap_or(9);
     out.sort_by(|a, b| {
         (a.group.as_str(), order(&a.method), a.modality.as_str()).cmp(&(
             b.group.as_str(),
@@ -249,42 +250,49 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
         ),
     });
 
-    // 2. The LSTM helps, on shear and on normal force.
-    for (label, axes) in [
-        ("shear (Fx, Fy)", &[0usize, 1][..]),
-        ("normal force (Fz)", &[2][..]),
+    // 2. The LSTM helps, on shear and on normal force: the paper's method, and ours, where
+    // shear crosses.
+    for (with, without) in [
+        ("TransForce", "TransForce (no LSTM)"),
+        (MARKER_FLOW, "marker flow (no LSTM)"),
     ] {
-        let mut ev = Vec::new();
-        let mut cmp = Some(Vec::new());
-        for g in groups {
-            for &a in axes {
-                match (
-                    best(agg, "TransForce", g, a),
-                    best(agg, "TransForce (no LSTM)", g, a),
-                ) {
-                    (Some(l), Some(n)) => {
-                        let c = compare(l, n, a);
-                        if let Some(v) = cmp.as_mut() {
-                            v.push(c);
+        for (label, axes) in [
+            ("shear (Fx, Fy)", &[0usize, 1][..]),
+            ("normal force (Fz)", &[2][..]),
+        ] {
+            let mut ev = Vec::new();
+            let mut cmp = Some(Vec::new());
+            for g in groups {
+                for &a in axes {
+                    match (best(agg, with, g, a), best(agg, without, g, a)) {
+                        (Some(l), Some(n)) => {
+                            let c = compare(l, n, a);
+                            if let Some(v) = cmp.as_mut() {
+                                v.push(c);
+                            }
+                            ev.push(format!(
+                                "{g} {}{}: {:.3} N with, {:.3} N without{}",
+                                AXES[a],
+                                loaded_tag(l, a),
+                                l.judged_mae(a).0,
+                                n.judged_mae(a).0,
+                                note(c)
+                            ));
                         }
-                        ev.push(format!(
-                            "{g} {}{}: {:.3} N with, {:.3} N without{}",
-                            AXES[a],
-                            loaded_tag(l, a),
-                            l.judged_mae(a).0,
-                            n.judged_mae(a).0,
-                            note(c)
-                        ));
+                        _ => cmp = None,
                     }
-                    _ => cmp = None,
                 }
             }
+            if with != "TransForce" && cmp.is_none() {
+                // A run without the marker-displacement methods (older results).
+                continue;
+            }
+            out.push(Verdict {
+                claim: format!("The LSTM over the frame sequence improves {label} ({with})"),
+                outcome: judged(cmp.as_deref()),
+                evidence: ev.join("; "),
+            });
         }
-        out.push(Verdict {
-            claim: format!("The LSTM over the frame sequence improves {label}"),
-            outcome: judged(cmp.as_deref()),
-            evidence: ev.join("; "),
-        });
     }
 
     // 3. The modality finding (TransForce, seen): M best for shear, R+M best for normal force.
@@ -382,6 +390,7 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
             }
         }
     }
+    out.extend(marker_verdicts(agg));
     out.push(Verdict {
         claim: "Translation brings the source images close to the target's: FID(Î_t, I_t) \
                 below a third of FID(I_s, I_t) (the paper: 81.1 → 18.3 seen, 87.9 → 21.3 unseen)"
@@ -390,6 +399,151 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
         evidence: ev.join("; "),
     });
     out
+}
+
+/// The marker-displacement method's bar (issue 58): the best model per axis reads R² ≥ 0.7 on
+/// shear and ≥ 0.85 on normal force, seen and unseen; its shear-loaded MAE is at least half
+/// source-only's; which method carries which axis; and the modality finding in its own terms
+/// (D for shear, D+S for normal force). Nothing where the run has no marker-displacement rows.
+fn marker_verdicts(agg: &[Aggregate]) -> Vec<Verdict> {
+    let groups = ["seen", "unseen"];
+    if !agg.iter().any(|a| a.method == MARKER_FLOW) {
+        return Vec::new();
+    }
+    let mut out = Vec::new();
+    let mut ev = Vec::new();
+    let mut ok = Some(true);
+    for g in groups {
+        for (a, name) in AXES.iter().enumerate() {
+            let bar = if a < 2 { 0.7 } else { 0.85 };
+            match best(agg, MARKER_FLOW, g, a) {
+                Some(b) => {
+                    ok = ok.map(|o| o && b.r2[a] >= bar);
+                    ev.push(format!(
+                        "{g} {name}: R² {:.3} ± {:.3} ({}; bar {bar})",
+                        b.r2[a], b.r2_sd[a], b.modality
+                    ));
+                }
+                None => {
+                    ok = None;
+                    ev.push(format!("{g} {name}: -"));
+                }
+            }
+        }
+    }
+    out.push(Verdict {
+        claim: "Marker flow reads the whole force vector on the target sensor: its best model \
+                per axis has R² ≥ 0.7 on Fx and Fy and ≥ 0.85 on Fz, seen and unseen (mean over \
+                seeds)"
+            .into(),
+        outcome: outcome_of(ok),
+        evidence: ev.join("; "),
+    });
+
+    let mut ev = Vec::new();
+    let mut ok = Some(true);
+    for g in groups {
+        for (a, name) in AXES.iter().enumerate().take(2) {
+            match (best(agg, MARKER_FLOW, g, a), best(agg, "source-only", g, a)) {
+                (Some(m), Some(s)) => {
+                    let (me, se) = (m.judged_mae(a).0, s.judged_mae(a).0);
+                    ok = ok.map(|o| o && se >= 2.0 * me);
+                    ev.push(format!(
+                        "{g} {name}{}: {me:.3} N ({}) against {se:.3} N ({}), ×{:.1}",
+                        loaded_tag(m, a),
+                        m.modality,
+                        s.modality,
+                        se / me
+                    ));
+                }
+                _ => {
+                    ok = None;
+                    ev.push(format!("{g} {name}: -"));
+                }
+            }
+        }
+    }
+    out.push(Verdict {
+        claim: "Marker flow's shear error is at most half source-only's (shear-loaded frames, \
+                best modality per axis)"
+            .into(),
+        outcome: outcome_of(ok),
+        evidence: ev.join("; "),
+    });
+
+    // Which method carries which axis.
+    let mut ev = Vec::new();
+    let mut cmp = Some(Vec::new());
+    for g in groups {
+        for (a, name) in AXES.iter().enumerate() {
+            match (best(agg, MARKER_FLOW, g, a), best(agg, "TransForce", g, a)) {
+                (Some(m), Some(t)) => {
+                    let c = compare(m, t, a);
+                    if let Some(v) = cmp.as_mut() {
+                        v.push(c);
+                    }
+                    let who = match c {
+                        Compare::Better => "marker flow",
+                        Compare::Worse => "TransForce",
+                        _ => "neither",
+                    };
+                    ev.push(format!(
+                        "{g} {name}{}: {who} ({:.3} N, {}, R² {:.2} against {:.3} N, {}, R² {:.2}){}",
+                        loaded_tag(m, a),
+                        m.judged_mae(a).0,
+                        m.modality,
+                        m.r2[a],
+                        t.judged_mae(a).0,
+                        t.modality,
+                        t.r2[a],
+                        note(c)
+                    ));
+                }
+                _ => cmp = None,
+            }
+        }
+    }
+    out.push(Verdict {
+        claim: "Marker flow predicts the target's force better than TransForce (best modality \
+                per axis; the evidence says which method carries each axis)"
+            .into(),
+        outcome: judged(cmp.as_deref()),
+        evidence: ev.join("; "),
+    });
+
+    // The modality finding in the marker-displacement method's terms.
+    let found = [0, 1, 2].map(|a| best(agg, MARKER_FLOW, "seen", a).map(|b| b.modality.clone()));
+    out.push(Verdict {
+        claim: "The markers' displacement (D) is best for shear, with the shading change (D+S) \
+                for normal force (marker flow, seen)"
+            .into(),
+        outcome: if !found.iter().all(Option::is_some) {
+            "not measured".into()
+        } else if found[0].as_deref() == Some("D")
+            && found[1].as_deref() == Some("D")
+            && found[2].as_deref() == Some("D+S")
+        {
+            "reproduced".into()
+        } else {
+            "refuted".into()
+        },
+        evidence: format!(
+            "best modality: Fx {}, Fy {}, Fz {}",
+            found[0].as_deref().unwrap_or("-"),
+            found[1].as_deref().unwrap_or("-"),
+            found[2].as_deref().unwrap_or("-"),
+        ),
+    });
+    out
+}
+
+fn outcome_of(ok: Option<bool>) -> String {
+    match ok {
+        Some(true) => "reproduced",
+        Some(false) => "refuted",
+        None => "not measured",
+    }
+    .to_owned()
 }
 
 /// " (loaded)" where the verdicts compare `a` on `axis` over the shear-loaded frames.
@@ -410,6 +564,38 @@ fn pm(m: f64, sd: f64, seeds: usize) -> String {
     } else {
         format!("{m:.3}")
     }
+}
+
+/// Each method's best modality per axis (lowest judged MAE), seen and unseen: the model a user
+/// would pick for that axis, with its R², its judged MAE and its % of range.
+fn best_per_axis(r: &Reproduction) -> String {
+    let mut s = String::from(
+        "## Best model per axis\n\nEach method's modality of lowest mean MAE per axis (shear \
+         on the shear-loaded frames): R², that MAE (N), and the MAE over every frame as % of \
+         range.\n\n| group | method | Fx | Fy | Fz |\n|---|---|---|---|---|\n",
+    );
+    for g in ["seen", "unseen"] {
+        for m in super::METHODS {
+            let cells: Vec<String> = (0..3)
+                .map(|a| match best(&r.aggregate, m.name, g, a) {
+                    Some(b) => format!(
+                        "{}: R² {:.2}, {:.3} N, {:.1} %",
+                        b.modality,
+                        b.r2[a],
+                        b.judged_mae(a).0,
+                        100.0 * b.mae[a] / r.range_n[a]
+                    ),
+                    None => "-".into(),
+                })
+                .collect();
+            if cells.iter().all(|c| c == "-") {
+                continue;
+            }
+            s.push_str(&format!("| {g} | {} | {} |\n", m.name, cells.join(" | ")));
+        }
+    }
+    s.push('\n');
+    s
 }
 
 /// The report: force tables with the paper's numbers, translation, verdicts, phase times.
@@ -467,6 +653,7 @@ pub fn markdown(r: &Reproduction) -> String {
         "Target labels' range: Fx {:.2}, Fy {:.2}, Fz {:.2} N (the paper's work range: 12, 12, 16 N).\n\n",
         r.range_n[0], r.range_n[1], r.range_n[2]
     ));
+    s.push_str(&best_per_axis(r));
     s.push_str("## Image translation\n\n| group | pair | images | FID | KID | the paper's FID |\n|---|---|---|---:|---:|---:|\n");
     for f in &r.fid {
         let paper = match (f.group.as_str(), f.pair.as_str()) {
@@ -489,7 +676,7 @@ pub fn markdown(r: &Reproduction) -> String {
     for n in &r.fid_notes {
         s.push_str(&format!("\n- {n}"));
     }
-    s.push_str("\n\nFigures: the absolute error by force range, per method, seen and unseen (the paper's violin figure): `figures/error-by-force-range.png`; predicted and true force over time for a few trajectories: `figures/force-over-time.png` (both with TransForce's best modality per axis); sample grids (I_s | Î_t | I_t): `figures/samples-seen.png`, `figures/samples-unseen.png`; predicted against true force per model: `results/models/<model>/pred-vs-true-*.svg`.\n\n## Verdicts\n\n");
+    s.push_str("\n\nFigures: the absolute error by force range, per method, seen and unseen (the paper's violin figure): `figures/error-by-force-range.png`; predicted and true force over time for a few trajectories: `figures/force-over-time.png` (both with each method's best modality per axis, named in the legend); sample grids (I_s | Î_t | I_t): `figures/samples-seen.png`, `figures/samples-unseen.png`; predicted against true force per model: `results/models/<model>/pred-vs-true-*.svg`.\n\n## Verdicts\n\n");
     for v in &r.verdicts {
         s.push_str(&format!(
             "- **{}**: {}.\n  {}\n",
