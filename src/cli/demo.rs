@@ -8,8 +8,9 @@ use crate::train::demo;
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// A small version (what CI runs; about 7 minutes on 2 cores in a release build): fewer
-    /// indenters and trajectories, smaller images and networks, R+M only.
+    /// A small version (what CI runs; minutes, not hours, on 2 cores in a release build):
+    /// fewer indenters and trajectories, smaller images and networks, the image models on R+M
+    /// only (marker flow reads D).
     #[arg(long)]
     pub quick: bool,
     /// Where the data, models and results go.
@@ -26,8 +27,8 @@ pub struct DemoArgs {
     #[arg(long, value_name = "FILE")]
     pub target: Option<PathBuf>,
     /// Magnify the source sensor's frames by the ratio of the two sensors' marker pitches
-    /// before translating them, so that shear can cross the translation (off by default; see
-    /// README, Benchmarks, *The protocol's runs*). Use a fresh --out.
+    /// before translating them, so that shear can cross the translation. It costs accuracy on
+    /// normal force, so it is off by default (docs/trainer.md). Use a fresh --out.
     #[arg(long)]
     pub match_marker_pitch: bool,
 }

@@ -9,12 +9,11 @@ use crate::train::reproduce::{self, Fid, Protocol, Scale};
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
     /// How big: `cpu` (the default) runs the whole split on 4 of the 12 directions with small
-    /// images and networks, in under two hours on 2 cores (47 min on 2026-11-30: collection
-    /// 11.8, translation 5.4, FID 18.8, the force models 6.6 after it, evaluation 4.5);
-    /// `paper` runs the full protocol (every trajectory, 320 × 240 frames, ResNet-50) and wants
-    /// a GPU (build with `--features vulkan`, or `wgpu` or `gpu`; at the `vulkan` build's speed
-    /// measured on an H200 its training would take about 43 h: README, Features); `tiny` is the
-    /// tests' few-minute version.
+    /// images and networks, sized to finish in under two hours on 2 CPU cores; `paper` runs
+    /// the full protocol (every trajectory, 320 × 240 frames, ResNet-50) and wants a GPU (build
+    /// with `--features vulkan`, `wgpu` or `gpu`; docs/trainer.md says what to expect); `tiny`
+    /// is the tests' version, a few minutes. The time each phase took in real runs is in
+    /// docs/benchmarks.md.
     #[arg(long, value_enum, default_value = "cpu")]
     pub scale: Scale,
     /// Where the data, translator, models, results and figures go. Run again with the same
@@ -38,9 +37,9 @@ pub struct ReproduceArgs {
     #[arg(long, value_name = "FILE")]
     pub target: Option<PathBuf>,
     /// Magnify the source sensor's frames by the ratio of the two sensors' marker pitches
-    /// before translating them, so that shear can cross the translation (off by default; see
-    /// README, Benchmarks, *The protocol's runs*). Use a fresh --out: a finished translation
-    /// in --out is reused as it is.
+    /// before translating them, so that shear can cross the translation. It costs accuracy on
+    /// normal force, so it is off by default (docs/trainer.md). Use a fresh --out: a finished
+    /// translation in --out is reused as it is.
     #[arg(long)]
     pub match_marker_pitch: bool,
 }

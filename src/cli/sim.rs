@@ -209,8 +209,8 @@ fn contact_sheet_command(args: &ContactSheetArgs) -> anyhow::Result<()> {
 }
 
 fn forces_command(args: &ForcesArgs) -> anyhow::Result<()> {
+    use crate::simrig::DEFAULT_PHYSICS_RATE_HZ;
     use crate::simrig::forces::plan_forces;
-    use hardware_mocks::rig_sim::DEFAULT_PHYSICS_RATE_HZ;
     let loaded = super::config::resolve_config(args.config.as_deref())?;
     let config = &loaded.config;
     let names: Vec<String> = if args.indenter == "all" {

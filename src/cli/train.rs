@@ -32,8 +32,11 @@ pub struct Common {
     /// Network input size, WIDTHxHEIGHT (multiples of 4).
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
     pub size: Option<(u32, u32)>,
+    /// Random seed of the weights and the batch order (default: the config's, 1).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Epochs to train (default: the config's; the paper's 30 for the translator, 20 for the
+    /// force model).
     #[arg(long)]
     pub epochs: Option<usize>,
 }
@@ -79,6 +82,8 @@ pub struct TranslateArgs {
     /// The target sensor's dataset (only its images are read).
     #[arg(long)]
     pub target: PathBuf,
+    /// Where `translated/` (the source images in the target's style, with the source forces),
+    /// `translator/` (the weights), `samples/` and the FID/KID table (`results.md`) go.
     #[arg(long)]
     pub out: PathBuf,
     /// Iterations per epoch (default: one pass over the larger image set).
@@ -98,17 +103,20 @@ pub struct ForceArgs {
     /// (the source-only baseline).
     #[arg(long)]
     pub data: PathBuf,
+    /// The model directory: weights (`model.safetensors`) after every epoch, the state
+    /// `--resume` needs, and the training log.
     #[arg(long)]
     pub out: PathBuf,
     /// The control group: the encoder's embedding straight into the MLP.
     #[arg(long)]
     pub no_lstm: bool,
-    /// What the model reads: the paper's `rgb+marker` (R+M), `rgb` (R) or `marker` (M), or
+    /// What the model reads: the paper's `rgb+marker` (R+M), `rgb` (R) or `marker` (M); or
     /// `flow` (D: the markers' displacement from each trajectory's first frame, in mm on a fixed
-    /// grid; train it on the source's recordings, no translation needed).
+    /// grid) or `flow+shading` (D+S: the same, with the gel's shading change since the first
+    /// frame). Train D and D+S on the source's recordings; they need no translation.
     #[arg(long, default_value = "rgb+marker")]
     pub modality: Modality,
-    /// ResNet depth of the encoder: 18, 34 or 50.
+    /// ResNet depth of the encoder: 18, 34 or 50 (default: the config's, 18; the paper's is 50).
     #[arg(long)]
     pub depth: Option<Depth>,
     /// Name in result tables (default: from the data and --no-lstm).
@@ -132,6 +140,8 @@ pub struct EvalArgs {
     /// Where results.md/.csv/.json and the plots go (default: the first model's eval/).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Trainer settings (TOML); `rig eval` reads the seen/unseen split from `[data]` (default:
+    /// the paper's split).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
 }

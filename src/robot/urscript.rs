@@ -23,7 +23,7 @@
 //!
 //! The generator lives in [`rig_core::urscript`] (re-exported here) so that the simulated
 //! controller in `hardware-mocks` runs exactly this text: it interprets the URScript it is
-//! sent (a subset of the language, `hardware_mocks::ur5e::urscript`), as a real controller
+//! sent (a subset of the language, `hardware-mocks/src/ur5e/urscript`), as a real controller
 //! runs it, rather than recognising the program and emulating it.
 
 pub use rig_core::urscript::{check_blocks, fmt_f64, program};

@@ -60,9 +60,9 @@ pub struct RunSummary {
     /// contact the simulated camera drew in it, ms.
     pub image_lag_max_ms: Option<f64>,
     /// Simulated rig only: the contact physics' counters (steps, steps in contact).
-    pub sim_physics: Option<hardware_mocks::rig_sim::PhysicsStats>,
+    pub sim_physics: Option<crate::simrig::PhysicsStats>,
     /// Simulated rig with a contact cache: what was replayed, solved and written.
-    pub sim_tapes: Option<hardware_mocks::rig_sim::TapeStats>,
+    pub sim_tapes: Option<crate::simrig::TapeStats>,
     /// Times a stream or the collector waited for the writer (slow disk).
     pub backpressure_waits: u64,
     /// Frames received from the camera in the whole run (recorded or not).

@@ -47,7 +47,9 @@ pub use camera::{SimFrameSource, frame_as_sent};
 pub use faults::{SimFault, SimFaultKind};
 pub use ft::open_ft;
 pub use governor::govern;
-pub use hardware_mocks::rig_sim::{PhysicsConfig, SimFtFrontEnd, TapeStats};
+pub use hardware_mocks::rig_sim::{
+    DEFAULT_PHYSICS_RATE_HZ, PhysicsConfig, PhysicsStats, SimFtFrontEnd, TapeStats,
+};
 /// The contact + optics simulator itself (scenes, contact models, rendering), for `rig sim`
 /// and `rig bench sim|render`.
 pub use hardware_mocks::sim;
@@ -121,7 +123,7 @@ impl RunningSimRig {
     }
 
     /// The contact physics' counters so far.
-    pub fn physics_stats(&self) -> hardware_mocks::rig_sim::PhysicsStats {
+    pub fn physics_stats(&self) -> PhysicsStats {
         self.rig.physics().stats()
     }
 

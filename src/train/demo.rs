@@ -67,8 +67,8 @@ impl DemoPlan {
                 // this small CycleGAN cannot redraw the source's 0.9 mm grid at the target's
                 // 1.1 mm pitch and keep it moving with the gel, and every quick model's shear on
                 // sim-target stays near zero (R² Fx, Fy ≤ 0.1). The pitch is what decides: with
-                // sim-target's hexagons 0.9 mm apart the quick demo learns shear (README,
-                // Benchmarks, *The protocol's runs*). With the reference generator
+                // sim-target's hexagons 0.9 mm apart the quick demo learns shear
+                // (docs/experiments.md, *The protocol's runs*). With the reference generator
                 // which one won on Fx and Fy was chance; with one downsampling (`translate`
                 // below) TransForce predicts less spurious shear than source-only and wins them
                 // (the demo test), by as little as ×1.08 on Fx (five runs on 2026-11-28: Fx

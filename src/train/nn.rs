@@ -48,7 +48,7 @@ pub use pad::reflect_pad;
 /// workers yield a while before they sleep). Run on a worker, the step starts each operation
 /// where it already is and shares it with one fewer wake-up. On 2 cores (2026-11-30, AMD EPYC)
 /// a CycleGAN step of the protocol's shape ran 20 % faster so, and at 1 thread the protocol's
-/// force models 6-24 % faster (README, Benchmarks).
+/// force models 6-24 % faster (docs/experiments.md).
 pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| work())
 }

@@ -3,7 +3,7 @@
 //! A CycleGAN translator carries the source's marker motion (shear) to the target's style only
 //! when the two lattices are about as far apart in pixels: with sim-target's markers 22 % coarser
 //! than the source's, the generator redraws the target's lattice as a fixed texture and no shear
-//! crosses (README, Benchmarks, *The protocol's runs*). A lab knows both gels' marker spacing and
+//! crosses (docs/experiments.md, *The protocol's runs*). A lab knows both gels' marker spacing and
 //! both cameras' scale, so the source's frames can be magnified by the ratio of the pitches before
 //! the translator sees them. The price is geometry: a contact then looks that much larger in the
 //! translated images than the same contact does on the target.

@@ -18,6 +18,7 @@ mod contact_cache;
 mod dataset_check;
 mod demo;
 mod disk_budget;
+mod docs;
 mod fault_drills;
 mod flow;
 mod ft_daq;

@@ -1,6 +1,6 @@
 //! The recording format of issue 16: old JSON recordings still read (check and trainer), a
 //! chunk write failure fails only its trajectory, MJPEG frames are recorded byte for byte,
-//! `rig dataset export --format folder`, and the README's Python snippet.
+//! `rig dataset export --format folder`, and the Python snippet of docs/recording-format.md.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
@@ -392,16 +392,19 @@ fn export_folder_writes_frames_and_a_force_csv_per_trajectory() {
     assert!(String::from_utf8_lossy(&again.stderr).contains("is not empty"));
 }
 
-/// The README's Python snippet, run as it stands against a recording: it decodes a frame and
-/// its paired wrench with the PyPI `mcap` + `mcap-protobuf-support` packages.
+/// The Python snippet of docs/recording-format.md, run as it stands against a recording: it
+/// decodes a frame and its paired wrench with the PyPI `mcap` + `mcap-protobuf-support` packages.
 #[test]
-fn the_readme_python_snippet_reads_a_frame_and_its_paired_wrench() {
-    let readme =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
-    let start = readme
+fn the_documented_python_snippet_reads_a_frame_and_its_paired_wrench() {
+    let page = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/docs/recording-format.md"
+    ))
+    .unwrap();
+    let start = page
         .find("<!-- python-snippet -->")
-        .expect("README has the python-snippet marker");
-    let code = readme[start..]
+        .expect("docs/recording-format.md has the python-snippet marker");
+    let code = page[start..]
         .split("```python\n")
         .nth(1)
         .and_then(|s| s.split("```").next())
@@ -424,7 +427,7 @@ fn the_readme_python_snippet_reads_a_frame_and_its_paired_wrench() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
-        "the README snippet failed (interpreter {python}; `bash scripts/test` installs \
+        "the docs/recording-format.md snippet failed (interpreter {python}; `bash scripts/test` installs \
          tests/python/requirements.txt into .venv):\n{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );

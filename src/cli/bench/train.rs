@@ -37,6 +37,7 @@ pub struct TrainBenchArgs {
     /// Smaller measurements (a quick look, noisier numbers).
     #[arg(long)]
     pub quick: bool,
+    /// Where the CSV and the plot go (`train.csv` and `train.svg`, or `speed.csv`).
     #[arg(long, value_name = "DIR", default_value = "bench-out")]
     pub out: PathBuf,
     /// Only the speed table, on random data (no dataset needed): training sequences/s and

@@ -3,7 +3,7 @@
 //!
 //! burn's `leaky_relu` is a comparison, a scaling and a masked select, each a pass and a graph
 //! node on the calling thread, and their backward as many again; in the CycleGAN's step they
-//! were the largest thing its main thread ran while the workers waited (README, Benchmarks).
+//! were the largest thing its main thread ran while the workers waited (docs/experiments.md).
 //! Here `y = x` where `x ≥ 0` (or NaN) and `α·x` where `x < 0`, burn's choice at each point, and
 //! the gradient is `dy` or `α·dy` by the same test on `x`.
 

@@ -5,7 +5,7 @@
 //! from burn's generic formulas: the input gradient as a transposed convolution and the weight
 //! gradient as a convolution with the batch as channels, each with its own layout copies. A
 //! profile of the ResNet-18 training step had more time in those copies than in the matrix
-//! products (README, Benchmarks). Here each image is one product on the classic unrolled
+//! products (docs/experiments.md). Here each image is one product on the classic unrolled
 //! layout (Chellapilla, Puri and Simard 2006, "High performance convolutional neural networks
 //! for document processing"), all NCHW, no copies beside the unrolling itself:
 //!
@@ -120,7 +120,7 @@ fn flex_conv(
 /// path, or the shortcut's convolution), that gradient is taken out and added into each image's
 /// input gradient by the worker that writes it. Left to `Gradients::register`, the sum is one
 /// single-threaded pass over the whole activation with the workers idle: about 2 % of a
-/// ResNet-34 step's wall time (README, Benchmarks).
+/// ResNet-34 step's wall time (docs/experiments.md).
 #[derive(Debug)]
 struct ConvBackward;
 

@@ -17,9 +17,10 @@
 //! The generator's layers (3 × 3, stride 2, padding 1, output padding 1) then run on the
 //! stride-2 kernels: forward by phases, input gradient and weight gradient on the direct
 //! products. burn's own, on the flex backend, ran its forward as a scatter loop and its
-//! backward as generic convolutions with layout copies, on the calling thread (README,
-//! Benchmarks). Anything other than one group, no dilation, a square kernel, equal strides and
-//! paddings, a bias and f32 on the flex device goes to burn's `ConvTranspose2d::forward`.
+//! backward as generic convolutions with layout copies, on the calling thread
+//! (docs/experiments.md, *The trainer beside PyTorch*). Anything other than one group, no
+//! dilation, a square kernel, equal strides and paddings, a bias and f32 on the flex device goes
+//! to burn's `ConvTranspose2d::forward`.
 //!
 //! The same relation serves the other way for a stride-1 convolution with few output channels
 //! (the generator's 7 × 7 head, 32 → 3): its input gradient is the forward of the "full"

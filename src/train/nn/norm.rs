@@ -466,7 +466,7 @@ pub fn batch_norm_relu<const D: usize>(
 /// per image (their gradients summed back by the repeat). burn's `InstanceNorm::forward` takes
 /// the same statistics (biased variance, `ε` inside the root) from generic tensor operations:
 /// about ten passes and graph nodes a layer, all on the calling thread, where the CycleGAN
-/// spent a good part of its step (README, Benchmarks).
+/// spent a good part of its step (docs/experiments.md).
 pub fn instance_norm(
     norm: &InstanceNorm,
     x: Tensor<4>,

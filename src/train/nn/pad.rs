@@ -7,7 +7,7 @@
 //! `PadMode::Reflect` builds the result from slices, flips and concatenations, each a pass and
 //! a graph node on the calling thread, and its backward takes them apart again: with the
 //! instance norms on burn's generic operations, these were most of what the main thread ran
-//! alone while the workers waited in a CycleGAN step (README, Benchmarks).
+//! alone while the workers waited in a CycleGAN step (docs/experiments.md).
 //!
 //! Here, with `p` the padding and `r(q)` the input index that padded index `q` copies
 //! (`q − p`, mirrored about the first and the last pixel without repeating them, as

@@ -17,7 +17,7 @@
 //!
 //! On an AVX-512 Xeon with 2 threads the ResNet-18 training step (64 × 48, width 16, batch 8)
 //! went from 19.9–20.6 to 22.4–22.6 seq/s and inference from 1.16–1.18 to 1.02–1.07 ms a
-//! frame (`rig bench train --speed`; README, Benchmarks). The kernels run where the CPU reports
+//! frame (`rig bench train --speed`; docs/experiments.md). The kernels run where the CPU reports
 //! AVX-512F at run time; elsewhere, and for channel counts that are not a multiple of 16, the
 //! callers keep `gemm`.
 //!
