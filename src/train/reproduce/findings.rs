@@ -197,14 +197,6 @@ pub struct Verdict {
 /// normal force), the modality finding, the accuracy target and the translation's FID.
 pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdict> {
     let mut out = Vec::new();
-    let outcome = |ok: Option<bool>| {
-        match ok {
-            Some(true) => "reproduced",
-            Some(false) => "refuted",
-            None => "not measured",
-        }
-        .to_owned()
-    };
     let groups = ["seen", "unseen"];
 
     // 1. TransForce beats source-only, best modality per axis, each group.
@@ -357,7 +349,7 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
         claim: "TransForce's MAE is within 5 % of the force range on every axis (the paper: \
                 5.8 / 5.8 / 6.9 %)"
             .into(),
-        outcome: outcome(ok),
+        outcome: outcome_of(ok),
         evidence: format!(
             "{} (range {:.2} / {:.2} / {:.2} N)",
             ev.join("; "),
@@ -395,7 +387,7 @@ pub fn verdicts(agg: &[Aggregate], range: [f64; 3], fid: &[FidRow]) -> Vec<Verdi
         claim: "Translation brings the source images close to the target's: FID(Î_t, I_t) \
                 below a third of FID(I_s, I_t) (the paper: 81.1 → 18.3 seen, 87.9 → 21.3 unseen)"
             .into(),
-        outcome: outcome(ok),
+        outcome: outcome_of(ok),
         evidence: ev.join("; "),
     });
     out
@@ -537,6 +529,7 @@ fn marker_verdicts(agg: &[Aggregate]) -> Vec<Verdict> {
     out
 }
 
+/// A bar's outcome: met ("reproduced"), missed ("refuted"), or not measured.
 fn outcome_of(ok: Option<bool>) -> String {
     match ok {
         Some(true) => "reproduced",
