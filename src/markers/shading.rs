@@ -26,13 +26,25 @@ const STEPS: usize = 4;
 pub struct Shading {
     width: usize,
     height: usize,
-    /// Each cell's [`STEPS`]² boxes, pixels: `[x0, y0, x1, y1)`, clipped to the image (empty
-    /// where a box lies outside it).
-    windows: Vec<[usize; 4]>,
+    /// Each cell's boxes (up to [`STEPS`]², those inside the image): its corners as offsets
+    /// into the summed-area table, and the box's weight `1 / (area · boxes)`, so that a cell's
+    /// tent mean is `Σ weight · (d + a − b − c)`.
+    boxes: Vec<Tile>,
+    /// Where each cell's boxes start in `boxes` (`cells + 1` entries).
+    starts: Vec<usize>,
     /// The reference frame's mean colour over each window.
-    reference: Vec<[f64; 3]>,
-    /// Summed-area table of the frame being measured (reused).
-    sums: Vec<[u32; 3]>,
+    reference: Vec<[f32; 3]>,
+    /// Summed-area table of the frame being measured (reused): `(width + 1) · (height + 1)`
+    /// entries of three channels, interleaved.
+    sums: Vec<u32>,
+}
+
+/// One box of a cell's tent: its corners' offsets in the summed-area table (first channel)
+/// and its weight.
+#[derive(Debug, Clone, Copy)]
+struct Tile {
+    corners: [u32; 4],
+    weight: f32,
 }
 
 impl Shading {
@@ -60,31 +72,47 @@ impl Shading {
         let offsets: Vec<f64> = (0..STEPS)
             .map(|k| ((k as f64 + 0.5) / STEPS as f64 - 0.5) * side)
             .collect();
-        let mut windows = Vec::with_capacity(spec.len() * STEPS * STEPS);
         let lo = |c: f64, n: usize| ((c - side / 2.0).round().max(0.0) as usize).min(n);
         let hi = |c: f64, n: usize| ((c + side / 2.0).round().max(0.0) as usize).min(n);
+        let stride = w + 1;
+        let offset = |x: usize, y: usize| ((y * stride + x) * 3) as u32;
+        let (mut boxes, mut starts) = (Vec::new(), vec![0]);
         for j in 0..spec.ny {
             for i in 0..spec.nx {
                 let [cx, cy] = geom.mm_to_px(spec.cell_mm(i, j));
+                let first = boxes.len();
                 for oy in &offsets {
                     for ox in &offsets {
                         let (x, y) = (cx + ox, cy + oy);
                         let (x0, x1, y0, y1) = (lo(x, w), hi(x, w), lo(y, h), hi(y, h));
-                        windows.push(if x0 < x1 && y0 < y1 {
-                            [x0, y0, x1, y1]
-                        } else {
-                            [0; 4]
-                        });
+                        if x0 < x1 && y0 < y1 {
+                            boxes.push(Tile {
+                                corners: [
+                                    offset(x0, y0),
+                                    offset(x1, y0),
+                                    offset(x0, y1),
+                                    offset(x1, y1),
+                                ],
+                                weight: ((x1 - x0) * (y1 - y0)) as f32,
+                            });
+                        }
                     }
                 }
+                // Each box's weight: the mean over its area, then over the cell's boxes.
+                let n = (boxes.len() - first) as f32;
+                for b in &mut boxes[first..] {
+                    b.weight = 1.0 / (b.weight * n);
+                }
+                starts.push(boxes.len());
             }
         }
         let mut s = Self {
             width: w,
             height: h,
-            windows,
+            boxes,
+            starts,
             reference: Vec::new(),
-            sums: vec![[0; 3]; (w + 1) * (h + 1)],
+            sums: vec![0; stride * (h + 1) * 3],
         };
         s.reference = s.means(reference);
         Ok(s)
@@ -111,54 +139,51 @@ impl Shading {
                 if base <= 0.0 {
                     return 0.0;
                 }
-                let d: f64 = (0..3).map(|c| (m[c] - r[c]).abs()).sum();
-                (d / base) as f32
+                let d: f32 = (0..3).map(|c| (m[c] - r[c]).abs()).sum();
+                d / base
             })
             .collect())
     }
 
     /// The tent-weighted mean colour about each cell: the mean of its boxes' means, boxes
-    /// outside the image left out (a summed-area table: O(pixels + cells)).
-    fn means(&mut self, img: &RgbImage) -> Vec<[f64; 3]> {
-        let (w, h) = (self.width, self.height);
-        let stride = w + 1;
+    /// outside the image left out (a summed-area table: O(pixels + cells)). The table is
+    /// exact in `u32` (at most 255 · 640 · 480 per channel); the weighting is in `f32`, whose
+    /// rounding (about 1e-7 of a mean) is far below the 1/500 a level of the image holds.
+    fn means(&mut self, img: &RgbImage) -> Vec<[f32; 3]> {
+        let w = self.width;
+        let row_len = (w + 1) * 3;
         let raw = img.as_raw();
-        for y in 0..h {
-            let mut row = [0u32; 3];
-            for x in 0..w {
-                let p = &raw[(y * w + x) * 3..][..3];
+        for (y, pixels) in raw.chunks_exact(w * 3).enumerate().take(self.height) {
+            let (above, below) = self.sums[y * row_len..(y + 2) * row_len].split_at_mut(row_len);
+            let mut run = [0u32; 3];
+            for ((p, a), b) in pixels
+                .chunks_exact(3)
+                .zip(above[3..].chunks_exact(3))
+                .zip(below[3..].chunks_exact_mut(3))
+            {
                 for c in 0..3 {
-                    row[c] += u32::from(p[c]);
+                    run[c] += u32::from(p[c]);
+                    b[c] = a[c] + run[c];
                 }
-                let above = self.sums[y * stride + x + 1];
-                self.sums[(y + 1) * stride + x + 1] =
-                    [above[0] + row[0], above[1] + row[1], above[2] + row[2]];
             }
         }
         let s = &self.sums;
-        let at = |x: usize, y: usize| s[y * stride + x];
-        self.windows
-            .chunks_exact(STEPS * STEPS)
-            .map(|boxes| {
-                let (mut sum, mut n) = ([0.0; 3], 0usize);
-                for &[x0, y0, x1, y1] in boxes {
-                    let area = (x1 - x0) * (y1 - y0);
-                    if area == 0 {
-                        continue;
-                    }
-                    let (a, b, c, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+        self.starts
+            .windows(2)
+            .map(|r| {
+                let mut sum = [0.0f32; 3];
+                for b in &self.boxes[r[0]..r[1]] {
+                    let [a, bb, c, d] = b.corners.map(|o| o as usize);
                     for k in 0..3 {
-                        let v =
-                            f64::from(d[k]) + f64::from(a[k]) - f64::from(b[k]) - f64::from(c[k]);
-                        sum[k] += v / area as f64;
+                        // d + a − b − c ≥ 0: the box's sum (wrapping arithmetic, exact).
+                        let v = s[d + k]
+                            .wrapping_add(s[a + k])
+                            .wrapping_sub(s[bb + k])
+                            .wrapping_sub(s[c + k]);
+                        sum[k] += v as f32 * b.weight;
                     }
-                    n += 1;
                 }
-                if n == 0 {
-                    [0.0; 3]
-                } else {
-                    sum.map(|v| v / n as f64)
-                }
+                sum
             })
             .collect()
     }
@@ -222,6 +247,30 @@ mod tests {
         let far = at(-3.75, 2.75);
         assert!(far < 1e-6, "far corner {far}");
         assert!(c > 10.0 * residue, "{c} against {residue}");
+    }
+
+    #[test]
+    fn a_uniform_change_reads_the_same_in_every_cell_of_a_large_frame() {
+        // 640 × 480 (the largest frames, whose box sums are the largest): every level up by
+        // 10 of 100 is a relative change of exactly 0.1, in the cells at the image's edge too
+        // (their boxes clipped), to f32's rounding.
+        let optics = OpticsConfig {
+            width_px: 640,
+            height_px: 480,
+            mm_per_px: 0.015625,
+            ..OpticsConfig::default()
+        };
+        let g = SensorGeometry::from_optics(&optics).unwrap();
+        let spec = GridSpec::default();
+        let reference = RgbImage::from_pixel(640, 480, image::Rgb([100, 100, 100]));
+        let mut s = Shading::new(&reference, &g, &spec).unwrap();
+        let f = s
+            .field(&RgbImage::from_pixel(640, 480, image::Rgb([110, 90, 110])))
+            .unwrap();
+        assert_eq!(f.len(), spec.len());
+        for v in f {
+            assert!((v - 0.1).abs() < 1e-6, "{v}");
+        }
     }
 
     #[test]

@@ -726,7 +726,7 @@ mod tests {
         v
     }
 
-    fn outcome_of(v: &[Verdict], claim_start: &str) -> String {
+    fn outcome_for(v: &[Verdict], claim_start: &str) -> String {
         v.iter()
             .find(|v| v.claim.starts_with(claim_start))
             .unwrap_or_else(|| panic!("no verdict on {claim_start}: {v:?}"))
@@ -741,13 +741,13 @@ mod tests {
             [10.0; 3],
             &[],
         );
-        assert_eq!(outcome_of(&v, "TransForce predicts"), "reproduced");
+        assert_eq!(outcome_for(&v, "TransForce predicts"), "reproduced");
         assert_eq!(
-            outcome_of(&v, "The LSTM over the frame sequence improves shear"),
+            outcome_for(&v, "The LSTM over the frame sequence improves shear"),
             "reproduced"
         );
         // No FID rows: not measured.
-        assert_eq!(outcome_of(&v, "Translation brings"), "not measured");
+        assert_eq!(outcome_for(&v, "Translation brings"), "not measured");
     }
 
     #[test]
@@ -769,7 +769,7 @@ mod tests {
             lstm.evidence
         );
         // Source-only 0.4 ± 0.01 against TransForce 0.5 ± 0.08: worse by more than the spread.
-        assert_eq!(outcome_of(&v, "TransForce predicts"), "refuted");
+        assert_eq!(outcome_for(&v, "TransForce predicts"), "refuted");
     }
 
     #[test]
@@ -791,7 +791,7 @@ mod tests {
         assert_eq!(c.outcome, "inconclusive");
         assert!(c.evidence.contains("neither learnt it"), "{}", c.evidence);
         assert_eq!(
-            outcome_of(&v, "The LSTM over the frame sequence improves normal"),
+            outcome_for(&v, "The LSTM over the frame sequence improves normal"),
             "inconclusive"
         );
         // The best modality (the only one, R+M) learnt nothing: the modality claim is open.
@@ -810,7 +810,7 @@ mod tests {
         a.push(agg("TransForce", "M", "seen", 0.9, 0.01, 0.5));
         let v = verdicts(&a, [10.0; 3], &[]);
         // R+M is best on every axis, and learnt them: the paper's M-for-shear is refuted.
-        assert_eq!(outcome_of(&v, "Markers"), "refuted");
+        assert_eq!(outcome_for(&v, "Markers"), "refuted");
     }
     /// On shear the verdicts read the shear-loaded frames: a model that wins over all frames
     /// by predicting little shear loses where the shear is.
@@ -848,12 +848,12 @@ mod tests {
             c.evidence
         );
         assert_eq!(
-            outcome_of(&v, "The LSTM over the frame sequence improves shear"),
+            outcome_for(&v, "The LSTM over the frame sequence improves shear"),
             "reproduced"
         );
         // The paper's 5 % of range is over all frames: 0.20 of 10 N is 2 %.
         assert_eq!(
-            outcome_of(&v, "TransForce's MAE is within 5 %"),
+            outcome_for(&v, "TransForce's MAE is within 5 %"),
             "reproduced"
         );
     }
