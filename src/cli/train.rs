@@ -7,8 +7,8 @@ use std::path::PathBuf;
 use clap::{Args, Subcommand};
 
 use crate::train::modality::Modality;
-use crate::train::nn::Depth;
 use crate::train::{Progress, TrainerConfig, cyclegan, data, eval, force, report};
+use rig_nn::Depth;
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -155,7 +155,7 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
                 cfg.translate.steps_per_epoch = a.steps_per_epoch;
             }
             let spec = cfg.spec(Modality::RgbMarker);
-            let zoom = crate::train::pitch::source_zoom(&cfg.translate, &a.source, &a.target)?;
+            let zoom = crate::train::cyclegan::source_zoom(&cfg.translate, &a.source, &a.target)?;
             let source = data::load_labelled_zoomed(&a.source, &spec, zoom, progress)?
                 .seen_only(&cfg.data.split);
             let target = data::load_unlabelled(&a.target, &spec, progress)?;

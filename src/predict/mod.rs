@@ -94,6 +94,15 @@ pub struct Estimate {
     pub raw_force_n: [f64; 3],
 }
 
+/// What is known of a frame's true force, N.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Truth {
+    /// The F/T wrench paired with the frame (what `rig eval` scores against).
+    pub paired: Option<[f64; 3]>,
+    /// Simulated rig: the simulator's force at the frame's true capture time.
+    pub sim: Option<[f64; 3]>,
+}
+
 /// Where a frame's time went, for the benchmark.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StageTimes {

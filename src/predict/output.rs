@@ -17,8 +17,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use serde::Serialize;
 
-use super::Estimate;
-use super::session::Truth;
+use super::{Estimate, Truth};
 use crate::live::{ExtraChannel, LiveView};
 use crate::record::legacy::Time;
 

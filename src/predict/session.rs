@@ -21,7 +21,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::output::{Output, Row};
-use super::{Estimate, Predictor};
+use super::{Estimate, Predictor, Truth};
 use crate::train::metrics::{self, AxisScores};
 use crate::train::modality::MarkerParams;
 
@@ -66,15 +66,6 @@ pub struct Input {
     pub image: FrameImage,
     /// When the source handed it over (set by [`Feed::offer`]).
     pub handed_at: Instant,
-}
-
-/// What is known of a frame's true force, N.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
-pub struct Truth {
-    /// The F/T wrench paired with the frame (what `rig eval` scores against).
-    pub paired: Option<[f64; 3]>,
-    /// Simulated rig: the simulator's force at the frame's true capture time.
-    pub sim: Option<[f64; 3]>,
 }
 
 #[derive(Default)]

@@ -512,7 +512,7 @@ pub(crate) fn check_before(
 /// Waits (up to `timeout` of clock time) until the camera stream has stored `n` frames, so
 /// that the first trajectory's check measures the real frames.
 pub(crate) async fn await_frames(
-    counters: &super::streams::StreamCounters,
+    counters: &super::events::StreamCounters,
     clock: &rig_core::clock::Clock,
     n: u64,
     timeout: std::time::Duration,

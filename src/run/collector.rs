@@ -30,7 +30,7 @@ use tokio::sync::broadcast::{self, error::RecvError};
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 
-use super::streams::Event;
+use super::events::Event;
 use crate::plan::StageName;
 use crate::record::{Record, Recorder};
 use crate::robot::RobotState;

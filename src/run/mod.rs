@@ -70,6 +70,7 @@
 pub mod budget;
 pub mod collector;
 mod devices;
+pub mod events;
 mod options;
 mod output;
 mod pipeline;

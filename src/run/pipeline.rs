@@ -14,9 +14,10 @@ use tokio::task::JoinHandle;
 
 use super::collector::{self, CollectCmd, CollectorSettings};
 use super::devices::Devices;
+use super::events::StreamSettings;
 use super::options::RunOptions;
 use super::safety::SafetyIo;
-use super::streams::{StreamSettings, Streams};
+use super::streams::Streams;
 use super::summary::RunSummary;
 use crate::plan::StageName;
 use crate::record::Recorder;

@@ -25,7 +25,7 @@ use rig_core::clock::Clock;
 use rig_core::ft::SampleFlags;
 use tokio::sync::{mpsc, watch};
 
-use super::streams::{Event, StreamCounters, StreamSettings, Trip};
+use super::events::{Event, StreamCounters, StreamSettings, Trip};
 use crate::force::{FtStream, WrenchSample};
 use crate::robot::{RobotState, SafetyLine};
 
@@ -371,7 +371,7 @@ pub(super) fn spawn(
     let forwarder = tokio::spawn(async move {
         while let Some(ev) = queued.recv().await {
             counters.ft_forwarder_waiting.store(true, Ordering::Release);
-            let sent = super::streams::forward(&out, ev, &counters).await;
+            let sent = super::events::forward(&out, ev, &counters).await;
             counters
                 .ft_forwarder_waiting
                 .store(false, Ordering::Release);

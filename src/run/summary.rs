@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use super::collector::TrajStats;
-use super::streams;
+use super::events;
 
 /// How one trajectory went.
 #[derive(Debug, Clone)]
@@ -96,7 +96,7 @@ pub struct Retract {
 /// controller's ticks (2 ms). More lag than this means the physics fell behind.
 const SIM_IMAGE_LAG_WARN_MS: f64 = 10.0;
 
-pub(super) fn progress_message(s: &TrajStats, c: &streams::StreamCounters) -> String {
+pub(super) fn progress_message(s: &TrajStats, c: &events::StreamCounters) -> String {
     let fps = match (s.first_frame_ns, s.last_frame_ns) {
         (Some(a), Some(b)) if b > a && s.frames > 1 => {
             (s.frames - 1) as f64 / ((b - a) as f64 * 1e-9)

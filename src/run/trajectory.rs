@@ -20,7 +20,8 @@ use rig_core::pose::{self, Pose};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use super::collector::{CollectCmd, TrajStats};
-use super::streams::{Streams, Trip};
+use super::events::Trip;
+use super::streams::Streams;
 use super::summary::{Retract, TrajectoryOutcome};
 use crate::plan::{Plan, Stage, StageName, Trajectory};
 use crate::record::Recorder;

@@ -11,12 +11,16 @@ use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor};
+use rig_nn::{
+    Discriminator, FusedAdam, GanShape, Generator, build_networks, device, init_params, l1, lsgan,
+    on_pool,
+};
 use serde::{Deserialize, Serialize};
 
 use super::Progress;
 use super::batch::{Rng, images_to_tensor, tensor_to_images};
 use super::data::{ImageSpec, LabelledSet, Trajectory, UnlabelledSet};
-use super::nn::{Discriminator, FusedAdam, GanShape, Generator, l1, lsgan};
+use super::pitch::pitch_zoom;
 
 const INFO: &str = "translator.json";
 
@@ -65,6 +69,19 @@ impl Default for TranslateConfig {
             match_marker_pitch: false,
         }
     }
+}
+
+/// The zoom the translator's source frames take under `cfg`: 1 unless
+/// [`TranslateConfig::match_marker_pitch`], else [`pitch_zoom`] (said on stderr).
+pub fn source_zoom(cfg: &TranslateConfig, source: &Path, target: &Path) -> anyhow::Result<f64> {
+    if !cfg.match_marker_pitch {
+        return Ok(1.0);
+    }
+    let z = pitch_zoom(source, target)?;
+    eprintln!(
+        "      marker pitches matched: the source's frames magnified {z:.3} × for translation"
+    );
+    Ok(z)
 }
 
 #[derive(Module, Debug)]
@@ -149,9 +166,9 @@ pub struct CycleGan {
 
 impl CycleGan {
     pub fn new(cfg: &TranslateConfig) -> Self {
-        let dev = super::force::device();
+        let dev = device();
         let adam = || FusedAdam::init(cfg.beta1, 0.999);
-        let (gens, discs, adev) = super::force::build_networks(&dev, Some(cfg.seed), || {
+        let (gens, discs, adev) = build_networks(&dev, Some(cfg.seed), || {
             let adev = dev.clone().autodiff();
             let gens = Generators {
                 s2t: Generator::new(&cfg.shape, &adev),
@@ -161,8 +178,8 @@ impl CycleGan {
                 t: Discriminator::new(&cfg.shape, &adev),
                 s: Discriminator::new(&cfg.shape, &adev),
             };
-            super::force::init_params(&gens);
-            super::force::init_params(&discs);
+            init_params(&gens);
+            init_params(&discs);
             (gens, discs, adev)
         });
         Self {
@@ -256,7 +273,7 @@ impl CycleGan {
             let (s, t) = (img(&gan), img(&gan));
             let t0 = std::time::Instant::now();
             // On the pool, as `translate` runs its steps.
-            let _ = super::nn::on_pool(|| gan.step(s, t, cfg.lr));
+            let _ = on_pool(|| gan.step(s, t, cfg.lr));
             if i >= 1 {
                 timed += t0.elapsed().as_secs_f64();
             }
@@ -317,7 +334,7 @@ pub fn translate(
     out: &Path,
     progress: Progress,
 ) -> anyhow::Result<Translated> {
-    super::nn::on_pool(|| translate_here(source, target, cfg, out, progress))
+    on_pool(|| translate_here(source, target, cfg, out, progress))
 }
 
 fn translate_here(
@@ -492,7 +509,7 @@ pub fn apply_translator(tdir: &Path, source: &LabelledSet) -> anyhow::Result<Lab
         );
     }
     fits_generator(&info.config.shape, &info.spec)?;
-    let dev = g_device(&super::force::device());
+    let dev = g_device(&device());
     let mut g = Generator::new(&info.config.shape, &dev);
     g.load_from(&mut SafetensorsStore::from_file(
         tdir.join("g_s2t.safetensors"),

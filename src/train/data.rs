@@ -25,7 +25,9 @@ use crate::record::reader::{self, Message};
 /// Name of a prepared dataset's index.
 pub const PREPARED_INDEX: &str = "prepared.json";
 const PREPARED_FRAMES: &str = "frames.bin";
+mod images;
 mod prep;
+pub use images::{ImageSpec, prepare_image};
 pub use prep::{FLOW_VIEW_MM, FramePrep, flow_image};
 
 const CACHE_DIR: &str = ".trainer-cache";
@@ -66,20 +68,6 @@ impl Split {
     }
     pub fn trains_on(&self, indenter: &str) -> bool {
         self.group(indenter) == "seen"
-    }
-}
-
-/// Images as the networks see them: RGB, `width × height`, one modality.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ImageSpec {
-    pub width: u32,
-    pub height: u32,
-    pub modality: Modality,
-}
-
-impl ImageSpec {
-    pub fn frame_bytes(&self) -> usize {
-        self.width as usize * self.height as usize * 3
     }
 }
 
@@ -309,7 +297,7 @@ pub fn load_labelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Re
 }
 
 /// [`load_labelled`] with each recorded frame first magnified `zoom` times about its centre
-/// ([`super::pitch::zoom_about_centre`]; 1: as recorded). The translator's source images take
+/// ([`images::zoom_about_centre`]; 1: as recorded). The translator's source images take
 /// this step when the two sensors' marker pitches are matched ([`super::pitch::pitch_zoom`]).
 /// A prepared dataset is already at the network's size and is loaded as it is.
 pub fn load_labelled_zoomed(
@@ -549,7 +537,7 @@ fn load_trajectory(
         let img = if zoom == 1.0 {
             img
         } else {
-            super::pitch::zoom_about_centre(&img, zoom)
+            images::zoom_about_centre(&img, zoom)
         };
         pixels.extend_from_slice(&prep.next(&img).with_context(|| format!("frame {seq}"))?);
         forces.push(paired[seq]);
@@ -565,29 +553,6 @@ fn load_trajectory(
         },
         forces: want_forces.then_some(forces),
     })
-}
-
-/// The network's size first (triangle filter), then the modality, with `params` (marker sizes
-/// in pixels of `img`) scaled to that size. Every image a force model sees, recorded, translated
-/// or live, takes these same steps: a translated set is written at the network's size, so
-/// deriving R and M there is the one way its images and the target's are made alike (deriving
-/// them from the full frame before resizing made the target's M and R images differ from the
-/// translated ones the TransForce models learnt from).
-pub fn prepare_image(img: &image::RgbImage, spec: &ImageSpec, params: &MarkerParams) -> Vec<u8> {
-    let resized;
-    let small = if img.width() == spec.width && img.height() == spec.height {
-        img
-    } else {
-        resized = image::imageops::resize(
-            img,
-            spec.width,
-            spec.height,
-            image::imageops::FilterType::Triangle,
-        );
-        &resized
-    };
-    let scale = spec.width as f32 / img.width().max(1) as f32;
-    spec.modality.apply(small, &params.scaled(scale)).into_raw()
 }
 
 fn read_cache(path: &Path, stamp: (u64, u64), spec: &ImageSpec) -> Option<Cached> {

@@ -23,8 +23,8 @@ use super::data::{self, ImageSpec, Split};
 use super::eval::{self, FidConfig};
 use super::force::{self, ForceConfig};
 use super::modality::Modality;
-use super::nn::{Depth, GanShape};
 use super::report::{Row, Table};
+use rig_nn::{Depth, GanShape};
 
 /// The demo's scale.
 #[derive(Debug, Clone)]
@@ -364,7 +364,7 @@ pub fn run(
         height: plan.spec.1,
         modality: Modality::RgbMarker,
     };
-    let zoom = super::pitch::source_zoom(&plan.translate, &src_dir, &tgt_dir)?;
+    let zoom = super::cyclegan::source_zoom(&plan.translate, &src_dir, &tgt_dir)?;
     let source = data::load_labelled_zoomed(&src_dir, &rgbm, zoom, progress)?.seen_only(&split);
     let target_images = data::load_unlabelled(&tgt_dir, &rgbm, progress)?;
     // The translator sees target images of the seen indenters only.
@@ -376,7 +376,7 @@ pub fn run(
     // Two trainings at a time, on the cores one leaves idle (a small network does not keep
     // two cores busy): the source-only baselines need no translation and train beside the
     // translator; TransForce trains beside its no-LSTM control. Each network's initial
-    // weights still come from its seed alone (`force::build_networks`).
+    // weights still come from its seed alone (`rig_nn::build_networks`).
     let mut table = Table::default();
     let models = std::thread::scope(|s| -> anyhow::Result<Vec<(String, PathBuf)>> {
         let baselines = s.spawn(|| -> anyhow::Result<Vec<(String, PathBuf)>> {

@@ -1,17 +1,18 @@
 //! `rig eval`: a force model on the target sensor's data, in the paper's terms: MAE and R² per
 //! axis and the total-force MAE, for the seen and unseen indenter groups; FID/KID between image
-//! sets (on the features of [`super::inception`]) and a colour-statistics distance.
+//! sets (on the features of [`rig_nn::inception`]) and a colour-statistics distance.
 
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;
 use std::path::Path;
 
+use rig_nn::{FEATURE_DIM, Inception, device};
 use serde::{Deserialize, Serialize};
 
 use super::batch::{Rng, Sequence};
 use super::data::{EvalSet, ImageSpec, Split, Trajectory, UnlabelledSet};
 use super::force::ForceModel;
-use super::inception::{self, Inception, WeightsError};
+use super::inception::{self, WeightsError};
 use super::metrics::{self, AxisScores};
 use super::report::{FidRow, Row};
 
@@ -231,7 +232,7 @@ pub fn load_inception(
     required: bool,
 ) -> anyhow::Result<Result<Inception, String>> {
     let w = inception::weights_path(flag);
-    match Inception::load(&w.path, &super::force::device()) {
+    match inception::load(&w.path, &device()) {
         Ok(mut net) => {
             net.batch = batch.max(1);
             Ok(Ok(net))
@@ -440,7 +441,7 @@ pub fn fid_notes(net: &Result<Inception, String>, rows: &[FidRow], cfg: &FidConf
             "KID subsets are smaller than the reference {} (as small as {m}) because the image samples are (at most {} per set and group); FID from fewer than {} images is biased upward, so compare rows with equal n.",
             cfg.kid_subset_size,
             cfg.max_images,
-            inception::FEATURE_DIM
+            FEATURE_DIM
         ));
     }
     notes

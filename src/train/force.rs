@@ -5,19 +5,21 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use burn::module::{Module, ModuleVisitor, Param};
+use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer, SgdConfig};
 use burn::store::{BurnpackStore, ModuleSnapshot, SafetensorsStore};
-use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
+use burn::tensor::{Device, Tensor, TensorData};
+use rig_nn::{
+    Depth, FastEncoder, ForceNet, ForceShape, FusedAdam, build_networks, device, gamma_l1,
+    init_params, on_pool,
+};
 use serde::{Deserialize, Serialize};
 
 use super::Progress;
 use super::batch::{Rng, Sequence, images_to_tensor, sample_sequences};
 use super::data::{ImageSpec, LabelledSet, Trajectory};
-use super::nn::{Depth, FastEncoder, ForceNet, ForceShape, FusedAdam, gamma_l1};
 
-mod speed;
-pub use speed::{StepSpeed, step_speed};
+pub mod speed;
 
 pub const MODEL_INFO: &str = "model.json";
 /// The format of a model directory this rig reads and writes ([`ModelInfo::format`]). A model
@@ -182,7 +184,7 @@ pub struct ForceModel {
 /// The encoder's CPU inference form on the CPU backend; `None` on the GPU, where burn's
 /// kernels run.
 fn fast_form(net: &ForceNet) -> Option<FastEncoder> {
-    if cfg!(any(feature = "gpu", feature = "wgpu")) {
+    if rig_nn::GPU {
         None
     } else {
         net.fast_encoder()
@@ -204,41 +206,6 @@ pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
     }
 }
 
-/// Builds networks under one process-wide lock, seeding the device's generator first when a
-/// seed is given. burn keeps one random generator per device for the whole process and draws
-/// from it when a parameter is initialised (training itself draws nothing from it). burn
-/// initialises parameters lazily, at their first use, so `build` must call [`init_params`] on
-/// every network it makes: then a network's initial weights depend on its seed alone even while
-/// other trainings run in other threads (`rig demo` trains two side by side). Without it they
-/// were drawn at the first forward pass, outside the lock, interleaved with the other
-/// training's draws, and the same data and seed gave different models run to run.
-pub fn build_networks<T>(dev: &Device, seed: Option<u64>, build: impl FnOnce() -> T) -> T {
-    static BUILD: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _g = BUILD.lock().unwrap_or_else(|p| p.into_inner());
-    if let Some(seed) = seed {
-        dev.seed(seed);
-    }
-    build()
-}
-
-/// Draws every parameter of `net` now (burn defers that to its first use): see
-/// [`build_networks`].
-pub fn init_params<M: Module>(net: &M) {
-    struct Touch;
-    impl ModuleVisitor for Touch {
-        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-            let _ = p.val();
-        }
-        fn visit_int<const D: usize>(&mut self, p: &Param<Tensor<D, Int>>) {
-            let _ = p.val();
-        }
-        fn visit_bool<const D: usize>(&mut self, p: &Param<Tensor<D, Bool>>) {
-            let _ = p.val();
-        }
-    }
-    net.visit(&mut Touch);
-}
-
 /// The network a training starts from, on `dev` with autodiff: its weights from `seed` alone.
 fn initial_network(shape: &ForceShape, dev: &Device, seed: u64) -> (Device, ForceNet) {
     build_networks(dev, Some(seed), || {
@@ -254,29 +221,6 @@ fn new_optimizer(kind: Optimizer) -> ModuleOptimizer {
     match kind {
         Optimizer::Adam => FusedAdam::init(0.9, 0.999),
         Optimizer::Sgd => SgdConfig::new().init(),
-    }
-}
-
-/// The device the trainer computes on: CUDA with the `gpu` feature; with `wgpu`, the GPU
-/// wgpu's heuristics pick (a high-power one first; `CUBECL_WGPU_DEFAULT_DEVICE`, e.g.
-/// `DiscreteGpu(1)`, overrides it), on Vulkan with SPIR-V kernels when the `vulkan` feature
-/// is on; else the flex CPU backend.
-pub fn device() -> Device {
-    #[cfg(feature = "gpu")]
-    {
-        Device::cuda(0)
-    }
-    #[cfg(all(feature = "vulkan", not(feature = "gpu")))]
-    {
-        Device::vulkan(burn::tensor::DeviceKind::DefaultDevice)
-    }
-    #[cfg(all(feature = "wgpu", not(any(feature = "gpu", feature = "vulkan"))))]
-    {
-        Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
-    }
-    #[cfg(not(any(feature = "gpu", feature = "wgpu")))]
-    {
-        Device::flex()
     }
 }
 
@@ -328,7 +272,7 @@ fn rates(sequences: usize, seq_len: usize, secs: f64) -> String {
 }
 
 /// Train (or resume training of) a force model on `set`, writing checkpoints into `out`; on a
-/// worker of rayon's pool ([`super::nn::on_pool`]).
+/// worker of rayon's pool ([`on_pool`]).
 pub fn train(
     set: &LabelledSet,
     cfg: &ForceConfig,
@@ -337,7 +281,7 @@ pub fn train(
     resume: bool,
     progress: Progress,
 ) -> anyhow::Result<TrainReport> {
-    super::nn::on_pool(|| train_here(set, cfg, method, out, resume, progress))
+    on_pool(|| train_here(set, cfg, method, out, resume, progress))
 }
 
 fn train_here(
@@ -763,6 +707,8 @@ pub fn checkpoint_files(dir: &Path) -> Vec<PathBuf> {
 
 #[cfg(test)]
 mod tests {
+    use burn::module::{ModuleVisitor, Param};
+
     use super::*;
 
     #[test]

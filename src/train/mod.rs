@@ -26,7 +26,6 @@ pub mod force;
 pub mod inception;
 pub mod metrics;
 pub mod modality;
-pub mod nn;
 pub mod pitch;
 pub mod report;
 pub mod reproduce;

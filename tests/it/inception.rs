@@ -7,7 +7,7 @@
 //! bilinear resize to 299, input range [−1, 0.9921875]), made once by
 //! `scripts/inception-reference` (versions in `reference.json`).
 //!
-//! Our features (src/train/inception.rs, burn on the CPU) must match each reference vector `r`
+//! Our features (rig-nn/src/inception.rs, burn on the CPU) must match each reference vector `r`
 //! within 1e-3 relative: ‖ours − r‖₂ ≤ 1e-3 ‖r‖₂, and every element within 1e-3 ‖r‖∞ (the
 //! vector's largest element).
 //!
@@ -20,7 +20,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use burn::tensor::Device;
-use rig::train::inception::{self, FEATURE_DIM, Inception};
+use rig::train::inception;
+use rig_nn::FEATURE_DIM;
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/inception");
 const IMAGES: [&str; 4] = [
@@ -51,7 +52,7 @@ fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
 #[test]
 fn inception_features_match_the_reference_vectors_to_1e_3_relative() {
     let w = inception::weights_path(None);
-    let net = match Inception::load(&w.path, &Device::flex()) {
+    let net = match inception::load(&w.path, &Device::flex()) {
         Ok(n) => n,
         Err(e) if std::env::var("RIG_REQUIRE_INCEPTION").as_deref() != Ok("1") => {
             eprintln!(

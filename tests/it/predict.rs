@@ -26,9 +26,9 @@ use rig::train::data::{self, ImageSpec, LabelledSet, Trajectory};
 use rig::train::eval;
 use rig::train::force::{self, ForceConfig, ForceModel};
 use rig::train::modality::Modality;
-use rig::train::nn::Depth;
 use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
+use rig_nn::Depth;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 

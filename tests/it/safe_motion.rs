@@ -342,7 +342,7 @@ fn a_blocked_recorder_does_not_delay_the_stop_on_a_force_limit_crossing() {
         )
     });
     assert!(
-        matches!(stop.trip, rig::run::streams::Trip::ForceLimit { limit_n, .. } if limit_n == DRILL_FORCE_LIMIT_N),
+        matches!(stop.trip, rig::run::events::Trip::ForceLimit { limit_n, .. } if limit_n == DRILL_FORCE_LIMIT_N),
         "{stop:?}"
     );
     assert!(

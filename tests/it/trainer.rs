@@ -10,7 +10,7 @@ use rig::train::data::{ImageSpec, LabelledSet, Trajectory};
 use rig::train::eval::eval_windows;
 use rig::train::force::{self, ForceConfig, ForceModel};
 use rig::train::modality::Modality;
-use rig::train::nn::{Depth, GanShape};
+use rig_nn::{Depth, GanShape};
 
 const W: u32 = 16;
 
@@ -168,7 +168,7 @@ fn the_force_model_overfits_a_tiny_dataset_and_round_trips_through_its_checkpoin
     // 120 epochs of 9 steps, the rate decaying on a cosine to a tenth. Measured over seeds
     // 1–8, which stand in for the rounding differences between CPUs (they change the course of
     // training the same way), with the weights drawn when the network is built
-    // (`force::init_params`): seeds 2–8 worst axis MAE 0.0072 N, median 0.0046 N; seed 1 stalls
+    // (`rig_nn::init_params`): seeds 2–8 worst axis MAE 0.0072 N, median 0.0046 N; seed 1 stalls
     // on Fx at 0.178 N (a local minimum of this 4-wide network; Fy and Fz 0.007 and 0.005 N),
     // so the test trains with seed 2. (With weights drawn lazily at the first forward pass,
     // seeds 1–8 gave worst 0.024 N.) At a constant rate the last epochs jump about (worst

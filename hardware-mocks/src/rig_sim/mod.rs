@@ -79,6 +79,8 @@
 //! and RTDE tasks are never held up by a solve. Without on-demand stepping, the wrench past the
 //! newest step is the newest one (held).
 
+mod config;
+mod lock;
 mod physics;
 mod read_ahead;
 mod tape;
@@ -103,7 +105,8 @@ use crate::sim::optics::ImageEffects;
 use crate::truth::SharedWrenchSource;
 use crate::ur5e::{Ur5e, Ur5eConfig};
 
-use physics::invalid;
+use config::invalid;
+pub use config::{DEFAULT_HISTORY, DEFAULT_PHYSICS_RATE_HZ, PhysicsConfig};
 pub use physics::*;
 pub use tape::{
     CROP_MM, ContactCache, MATCH_MM, MAX_DRIFT_NS, MAX_REST_SLIP_NS, TapeStats, cache_key,

@@ -87,6 +87,8 @@ pub mod script;
 mod shared;
 pub mod snapshot;
 pub mod urscript;
+#[cfg(test)]
+mod urscript_tests;
 pub mod variables;
 
 use std::net::SocketAddr;

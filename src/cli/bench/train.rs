@@ -21,7 +21,7 @@ use crate::train::data::{self, ImageSpec, LabelledSet};
 use crate::train::eval::eval_windows;
 use crate::train::force::{self, ForceConfig, ForceModel};
 use crate::train::modality::Modality;
-use crate::train::nn::Depth;
+use rig_nn::Depth;
 
 #[derive(Debug, Args)]
 pub struct TrainBenchArgs {
@@ -75,7 +75,7 @@ fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
 /// `rig bench train --speed`.
 fn run_speed(args: &TrainBenchArgs) -> anyhow::Result<()> {
     use crate::train::cyclegan::{CycleGan, TranslateConfig};
-    use crate::train::nn::GanShape;
+    use rig_nn::GanShape;
     let (w, h) = parse_size(&args.size)?;
     let spec = ImageSpec {
         width: w,
@@ -102,7 +102,7 @@ fn run_speed(args: &TrainBenchArgs) -> anyhow::Result<()> {
             batch: args.batch,
             ..ForceConfig::default()
         };
-        let s = force::step_speed(&cfg, spec, args.steps);
+        let s = force::speed::step_speed(&cfg, spec, args.steps);
         println!(
             "| ResNet-{depth} | {:.1} | {:.0} | {:.3} |",
             s.sequences_per_s, s.images_per_s, s.infer_ms_per_frame

@@ -3,7 +3,7 @@
 
 use anyhow::Context;
 
-use super::{ImageSpec, prepare_image};
+use super::images::{ImageSpec, prepare_image};
 use crate::train::modality::{FLOW_LEVELS_PER_MM, MarkerParams, Modality, SHADING_LEVELS};
 
 /// Makes a trajectory's frames, in order, into the network's images: [`prepare_image`] for

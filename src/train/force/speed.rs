@@ -5,10 +5,11 @@ use burn::optim::GradientsParams;
 use burn::tensor::{Tensor, TensorData};
 use serde::Serialize;
 
-use super::{ForceConfig, ForceModel, device, initial_network, new_optimizer, shape_for};
+use rig_nn::{device, gamma_l1, on_pool};
+
+use super::{ForceConfig, ForceModel, initial_network, new_optimizer, shape_for};
 use crate::train::batch::{Rng, images_to_tensor};
 use crate::train::data::ImageSpec;
-use crate::train::nn::gamma_l1;
 
 /// What the force model's training step and inference cost on this machine: for
 /// `rig bench train --speed` and its side-by-side with PyTorch (`scripts/bench-torch`).
@@ -44,7 +45,7 @@ pub fn step_speed(cfg: &ForceConfig, spec: ImageSpec, steps: usize) -> StepSpeed
     for i in 0..steps + 2 {
         let t0 = std::time::Instant::now();
         // On the pool, as `train` runs its steps.
-        net = crate::train::nn::on_pool(|| {
+        net = on_pool(|| {
             let x = images_to_tensor(&refs, &spec, &adev).reshape([b, t, 3, h, w]);
             let y = Tensor::<3>::from_data(TensorData::new(labels.clone(), [b, t, 3]), &adev);
             let loss = gamma_l1(net.forward(x), y, cfg.gamma);

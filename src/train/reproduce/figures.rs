@@ -7,8 +7,8 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::METHODS;
 use super::findings::{Aggregate, best};
+use super::methods::METHODS;
 use crate::chart::{PngArea, png};
 use crate::train::data::Split;
 use crate::train::eval::Predictions;

@@ -5,11 +5,26 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::{
-    METHODS, PAPER_FID_AFTER, PAPER_FID_BEFORE, PAPER_MAE_N, PAPER_R2, PAPER_RANGE_N, Reproduction,
+use super::methods::{
+    METHODS, PAPER_FID_AFTER, PAPER_FID_BEFORE, PAPER_MAE_N, PAPER_R2, PAPER_RANGE_N,
 };
+use super::protocol::Scale;
 use crate::train::demo::METHOD_MARKER_FLOW as MARKER_FLOW;
 use crate::train::report::{FidRow, Row};
+
+/// Everything `rig reproduce` found.
+#[derive(Debug, Serialize)]
+pub struct Reproduction {
+    pub scale: Scale,
+    pub rows: Vec<Row>,
+    pub aggregate: Vec<Aggregate>,
+    pub fid: Vec<FidRow>,
+    pub fid_notes: Vec<String>,
+    /// The target labels' range per axis, N (max − min over every frame).
+    pub range_n: [f64; 3],
+    pub verdicts: Vec<Verdict>,
+    pub phases_s: BTreeMap<String, f64>,
+}
 
 /// One row aggregated over seeds: mean and sample standard deviation.
 #[derive(Debug, Clone, Serialize)]
@@ -568,7 +583,7 @@ fn best_per_axis(r: &Reproduction) -> String {
          range.\n\n| group | method | Fx | Fy | Fz |\n|---|---|---|---|---|\n",
     );
     for g in ["seen", "unseen"] {
-        for m in super::METHODS {
+        for m in METHODS {
             let cells: Vec<String> = (0..3)
                 .map(|a| match best(&r.aggregate, m.name, g, a) {
                     Some(b) => format!(

@@ -53,66 +53,13 @@ use super::report::{FidRow, Row};
 
 mod figures;
 mod findings;
+mod methods;
 mod protocol;
-pub use findings::{Aggregate, Verdict, aggregate, markdown, verdicts};
+pub use findings::{Aggregate, Reproduction, Verdict, aggregate, markdown, verdicts};
+pub use methods::{
+    METHODS, Method, PAPER_FID_AFTER, PAPER_FID_BEFORE, PAPER_MAE_N, PAPER_R2, PAPER_RANGE_N,
+};
 pub use protocol::{Protocol, Scale};
-
-/// One method of the protocol.
-#[derive(Debug, Clone, Copy)]
-pub struct Method {
-    pub name: &'static str,
-    /// Trained on the translated images (else on the source sensor's own).
-    pub translated: bool,
-    pub lstm: bool,
-    /// Reads the marker-displacement modalities (D, D+S) instead of the paper's (R, M, R+M).
-    pub markers: bool,
-}
-
-/// The methods, in the report's order: the paper's three (source-only with the LSTM,
-/// TransForce without and with it), then ours, which reads the markers' displacement instead
-/// of a translated image (`--modality flow`; with and without the LSTM, so that the paper's
-/// LSTM claim can be judged where shear crosses).
-pub const METHODS: [Method; 5] = [
-    Method {
-        name: "source-only",
-        translated: false,
-        lstm: true,
-        markers: false,
-    },
-    Method {
-        name: "TransForce (no LSTM)",
-        translated: true,
-        lstm: false,
-        markers: false,
-    },
-    Method {
-        name: "TransForce",
-        translated: true,
-        lstm: true,
-        markers: false,
-    },
-    Method {
-        name: "marker flow (no LSTM)",
-        translated: false,
-        lstm: false,
-        markers: true,
-    },
-    Method {
-        name: crate::train::demo::METHOD_MARKER_FLOW,
-        translated: false,
-        lstm: true,
-        markers: true,
-    },
-];
-
-/// The paper's reported results on its real sensors (seen group, LSTM): MAE Fx and Fy with
-/// the marker modality, Fz with R+M (N), their work range (N: Fx, Fy ±6, Fz −16..0), the best
-/// R² per axis, and FID before (I_s–I_t) and after (Î_t–I_t) translation, seen and unseen.
-pub const PAPER_MAE_N: [f64; 3] = [0.695, 0.701, 1.112];
-pub const PAPER_RANGE_N: [f64; 3] = [12.0, 12.0, 16.0];
-pub const PAPER_R2: [f64; 3] = [0.69, 0.66, 0.79];
-pub const PAPER_FID_BEFORE: [f64; 2] = [81.1, 87.9];
-pub const PAPER_FID_AFTER: [f64; 2] = [18.3, 21.3];
 
 /// Wall time per phase, s, kept in `<out>/phases.json` across resumed runs (a phase done by an
 /// earlier run keeps that run's time).
@@ -135,20 +82,6 @@ impl Phases {
         eprintln!("      {phase}: {s:.0} s");
         Ok(())
     }
-}
-
-/// Everything `rig reproduce` found.
-#[derive(Debug, Serialize)]
-pub struct Reproduction {
-    pub scale: Scale,
-    pub rows: Vec<Row>,
-    pub aggregate: Vec<Aggregate>,
-    pub fid: Vec<FidRow>,
-    pub fid_notes: Vec<String>,
-    /// The target labels' range per axis, N (max − min over every frame).
-    pub range_n: [f64; 3],
-    pub verdicts: Vec<Verdict>,
-    pub phases_s: BTreeMap<String, f64>,
 }
 
 /// Whether phase 3 computes FID and KID, and with which Inception weights.
@@ -554,7 +487,7 @@ impl Trainer<'_> {
 fn translate_and_fid(
     protocol: &Protocol,
     out: &Path,
-    net: &Result<super::inception::Inception, String>,
+    net: &Result<rig_nn::Inception, String>,
     phases: &mut Phases,
     progress: bool,
 ) -> anyhow::Result<(Vec<FidRow>, Vec<String>)> {
@@ -569,7 +502,7 @@ fn translate_and_fid(
     };
     let tdir = out.join("translate");
     let done = tdir.join("DONE");
-    let zoom = super::pitch::source_zoom(&protocol.translate, &src_dir, &tgt_dir)?;
+    let zoom = super::cyclegan::source_zoom(&protocol.translate, &src_dir, &tgt_dir)?;
     let source_all = data::load_labelled_zoomed(&src_dir, &rgbm, zoom, progress)?;
     let (source_seen, source_unseen) = partition(source_all, &split);
     let target_images = data::load_unlabelled(&tgt_dir, &rgbm, progress)?;

@@ -2,6 +2,7 @@
 //! input, modalities, seeds and the training settings of the translator and the force models.
 
 use rig_core::config::RigConfig;
+use rig_nn::{Depth, FEATURE_DIM, GanShape};
 use serde::{Deserialize, Serialize};
 
 use crate::train::cyclegan::TranslateConfig;
@@ -9,9 +10,7 @@ use crate::train::data::{PAPER_EXCLUDED, PAPER_UNSEEN, Split};
 use crate::train::demo::{DemoPlan, sized_camera};
 use crate::train::eval::FidConfig;
 use crate::train::force::ForceConfig;
-use crate::train::inception::FEATURE_DIM;
 use crate::train::modality::Modality;
-use crate::train::nn::{Depth, GanShape};
 
 /// How big a reproduction to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
@@ -192,7 +191,7 @@ impl Protocol {
     }
 
     /// The modalities `method` is trained on.
-    pub fn modalities_of(&self, method: &super::Method) -> &[Modality] {
+    pub fn modalities_of(&self, method: &super::methods::Method) -> &[Modality] {
         if method.markers {
             &self.marker_modalities
         } else {

@@ -7,8 +7,15 @@ use std::os::unix::fs::FileExt;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
-use super::{CROP_MM, MAGIC, STEP_BYTES};
+use crate::rig_sim::lock::lock;
 use crate::sim::{SimOutput, SurfaceField};
+
+/// Field values below this (mm) are not kept (see the tape module's docs).
+pub const CROP_MM: f64 = 1e-5;
+/// A tape file's first bytes.
+const MAGIC: &[u8; 8] = b"RIGTAPE1";
+/// Bytes of one step's record in a tape file.
+const STEP_BYTES: usize = 8 + 3 * 8 + 6 * 8 + 8 + 4;
 
 /// One recorded step.
 #[derive(Debug, Clone, Copy)]
@@ -80,7 +87,7 @@ impl Tape {
         if len == 0 {
             return Ok(None);
         }
-        let mut memo = crate::rig_sim::physics::lock(&self.decoded);
+        let mut memo = lock(&self.decoded);
         if let Some((i, f)) = memo.as_ref()
             && *i == k
         {

@@ -63,11 +63,13 @@ use std::sync::{Arc, Mutex};
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::Indenter;
 
-use super::PhysicsConfig;
+use super::config::PhysicsConfig;
+use super::lock::lock;
 
 mod file;
 mod replay;
 
+pub use file::CROP_MM;
 use file::{Tape, TapeRecorder};
 pub(super) use replay::Episode;
 
@@ -88,13 +90,8 @@ pub const MAX_REST_SLIP_NS: i64 = 200_000_000;
 /// How far the run's path length may be from the tape's at a found point, mm: the run's
 /// steps cut no corner (the arm stops at each stage's end), so only rounding separates them.
 const PATH_SLACK_MM: f64 = 5e-3;
-/// Field values below this (mm) are not kept (see the module docs).
-pub const CROP_MM: f64 = 1e-5;
 /// Below this (mm) between two steps, the indenter rests.
 const REST_MM: f64 = 1e-6;
-const MAGIC: &[u8; 8] = b"RIGTAPE1";
-/// Bytes of one step's record in a tape file.
-const STEP_BYTES: usize = 8 + 3 * 8 + 6 * 8 + 8 + 4;
 
 /// FNV-1a, usable in a `const`.
 const fn fnv1a(mut h: u64, bytes: &[u8]) -> u64 {
@@ -256,7 +253,7 @@ impl ContactCache {
 
     /// Waits for the tapes being written.
     pub fn flush(&self) {
-        let writers = std::mem::take(&mut *super::physics::lock(&self.inner.writers));
+        let writers = std::mem::take(&mut *lock(&self.inner.writers));
         for w in writers {
             let _ = w.join();
         }
@@ -264,7 +261,7 @@ impl ContactCache {
 
     /// The tapes that touched down at the point of `at` (x, y), to [`MATCH_MM`].
     fn touching_down_at(&self, at: &[f64; 3]) -> Vec<Arc<Tape>> {
-        super::physics::lock(&self.inner.tapes)
+        lock(&self.inner.tapes)
             .iter()
             .filter(|t| {
                 let p = t.steps[0].at;
@@ -292,14 +289,14 @@ impl ContactCache {
         let handle = std::thread::spawn(move || match rec.write(&path) {
             Ok(()) => match Tape::load(&path) {
                 Ok(t) => {
-                    super::physics::lock(&cache.inner.tapes).push(Arc::new(t));
+                    lock(&cache.inner.tapes).push(Arc::new(t));
                     cache.inner.tapes_written.fetch_add(1, Ordering::Relaxed);
                 }
                 Err(e) => tracing::warn!("contact cache: {}: {e}", path.display()),
             },
             Err(e) => tracing::warn!("contact cache: writing {}: {e}", path.display()),
         });
-        let mut writers = super::physics::lock(&self.inner.writers);
+        let mut writers = lock(&self.inner.writers);
         writers.retain(|w| !w.is_finished());
         writers.push(handle);
     }

@@ -4,8 +4,10 @@
 use rig_core::config::ElastomerConfig;
 use rig_core::indenter::{Geometry, Indenter, Primitive};
 
-use super::MAX_GRID_CELLS;
 use crate::sim::scene::SimError;
+
+/// Most cells a contact grid may have (a typo in a cell size must not exhaust memory).
+pub const MAX_GRID_CELLS: usize = 1 << 20;
 
 /// Material constants derived from the elastomer configuration.
 #[derive(Debug, Clone, Copy, PartialEq)]

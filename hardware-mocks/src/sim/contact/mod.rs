@@ -147,7 +147,7 @@ use rig_core::wrench::Wrench;
 pub use super::scene::{ContactModel, FrictionModel, Viscoelastic};
 use super::scene::{Scene, SimError, SimStats};
 use geometry::overlap;
-pub use geometry::{Grid, Material, OVERLAP_SAMPLE_MM, sphere_of};
+pub use geometry::{Grid, MAX_GRID_CELLS, Material, OVERLAP_SAMPLE_MM, sphere_of};
 use window::GridCache;
 
 /// Closed-form reference forces (N) for the benchmark and tests; `e_star_mpa` is `E/(1−ν²)`.
@@ -180,8 +180,6 @@ pub mod analytic {
 
 /// Default grid cell, mm: the sphere converges to Hertz within 2% (see the module docs).
 pub const DEFAULT_CELL_MM: f64 = 0.1;
-/// Most cells a contact grid may have (a typo in a cell size must not exhaust memory).
-pub const MAX_GRID_CELLS: usize = 1 << 20;
 
 /// Surface fields on a regular grid over the gel, in the sensor surface frame.
 ///

@@ -27,10 +27,11 @@ use std::collections::HashMap;
 use rustfft::num_complex::Complex64;
 
 use super::fft::Conv2;
+use super::geometry::Grid;
 use super::kernels::{self, OffsetTable, TangentialKernel, TangentialOffsets};
 use super::normal::{self, NormalGrid};
 use super::tangential::{self, Tangential};
-use super::{Grid, SimStats};
+use crate::sim::scene::SimStats;
 
 /// Cells added around the penetrated cells for the normal window (the gel around a contact
 /// sinks with it, so contact rarely spreads past the geometric overlap; the check catches it
@@ -424,7 +425,7 @@ mod tests {
             ("hexagon", [0.0, 0.0], 0.5, false),
         ] {
             let ind = Indenter::builtin(name).expect("built-in");
-            let ov = super::super::overlap(&ind, &grid, axis, depth, None);
+            let ov = super::super::geometry::overlap(&ind, &grid, axis, depth, None);
             let mut stats = SimStats::default();
             let mut cache = GridCache::new(grid);
             let got = cache.solve_normal(key(&gel), gel.poisson_ratio, inv_e_star, &ov, &mut stats);
@@ -476,7 +477,7 @@ mod tests {
         let ind = Indenter::builtin("sphere").expect("built-in");
         // The sphere touches about 3 cells around cell (6, 10) (x = −2.4 mm); cell (19, 10) is
         // 5.2 mm away, outside its window, where the gel rises.
-        let mut ov = super::super::overlap(&ind, &grid, [-2.4, 0.0], 0.3, None);
+        let mut ov = super::super::geometry::overlap(&ind, &grid, [-2.4, 0.0], 0.3, None);
         let far = 10 * 25 + 19;
         let first = Window::around(25, 20, NORMAL_PAD, (0..500).filter(|&k| ov[k] > 0.0));
         assert!(!first.expect("contact").contains(far, 25));
@@ -511,7 +512,7 @@ mod tests {
         let inv_e_star = (1.0 - gel.poisson_ratio.powi(2)) / gel.youngs_modulus_mpa;
         let inv_e = 1.0 / gel.youngs_modulus_mpa;
         let ind = Indenter::builtin("sphere").expect("built-in");
-        let ov = super::super::overlap(&ind, &grid, [1.0, 0.5], 0.5, None);
+        let ov = super::super::geometry::overlap(&ind, &grid, [1.0, 0.5], 0.5, None);
         let mut stats = SimStats::default();
         let mut cache = GridCache::new(grid);
         let normal = cache.solve_normal(key(&gel), gel.poisson_ratio, inv_e_star, &ov, &mut stats);

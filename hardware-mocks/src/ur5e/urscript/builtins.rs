@@ -13,7 +13,6 @@
 use rig_core::pose::{self, Pose};
 use rig_core::rtde::fields;
 
-use super::interp::Wait;
 use super::value::Value;
 use super::{Robot, Watchdog, WatchdogAction};
 
@@ -229,6 +228,23 @@ fn bind(f: Builtin, mut values: Vec<Value>, keywords: &[String]) -> Result<Vec<V
             })
         })
         .collect())
+}
+
+/// What a blocked thread waits for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wait {
+    /// Not blocked.
+    None,
+    /// The next cycle (`sync()`).
+    NextCycle,
+    /// The motion with this id to end (`movel`).
+    Motion(u64),
+    /// The arm at rest (`stopl`).
+    Rest,
+    /// Controller time, ns (`sleep`).
+    Until(u64),
+    /// Thread with this id to end (`join`).
+    Join(u32),
 }
 
 /// What a built-in call gives: a value now, or a wait after which it evaluates to `None`.

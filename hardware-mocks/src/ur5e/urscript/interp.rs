@@ -33,7 +33,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use super::ast::Scope;
-use super::builtins::{self, Flow};
+use super::builtins::{self, Flow, Wait};
 use super::compile::{Code, Op};
 use super::value::{self, Value};
 use super::{Robot, RuntimeError};
@@ -62,23 +62,6 @@ fn weight(v: &Value, limit: usize) -> usize {
         }
         _ => 1,
     }
-}
-
-/// What a blocked thread waits for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Wait {
-    /// Not blocked.
-    None,
-    /// The next cycle (`sync()`).
-    NextCycle,
-    /// The motion with this id to end (`movel`).
-    Motion(u64),
-    /// The arm at rest (`stopl`).
-    Rest,
-    /// Controller time, ns (`sleep`).
-    Until(u64),
-    /// Thread with this id to end (`join`).
-    Join(u32),
 }
 
 #[derive(Debug, Clone)]

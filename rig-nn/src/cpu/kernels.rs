@@ -1,5 +1,5 @@
 //! The building blocks of the CPU training kernels ([`super::conv`], [`super::norm`] and
-//! the inference path [`super::fast`]): tensors in and out of flat `f32` vectors, buffers that
+//! the inference path [`crate::FastEncoder`]): tensors in and out of flat `f32` vectors, buffers that
 //! are written before they are read, parallel sums and maps, the strided matrix product on
 //! `gemm`, and the channels-last bordered layout of the 3 × 3 convolutions with its products.
 
@@ -299,7 +299,7 @@ pub(super) fn to_pixels(
 /// taps of output pixel `p` in kernel row `ky` are the `3c` floats from padded pixel
 /// `p + ky · wp`, so `L_ky` is `pad` itself read with a row stride of `c` (rows overlap), and
 /// `W_ky` is rows `ky · 3c ..` of `w`, `[9c, n]` with rows in (ky, kx, ci) order.
-pub(super) fn three_rows(
+pub(crate) fn three_rows(
     pad: &[f32],
     [wp, c, m]: [usize; 3],
     w: &[f32],
@@ -417,10 +417,10 @@ pub(super) fn to_planes(
 }
 
 /// Weights `[o, c, k, k]` with their taps first: `[k²c, o]`, rows in (ky, kx, ci) order, as
-/// [`three_rows`] (for k = 3) and the channels-last products of [`super::fast`] take them; or,
+/// [`three_rows`] (for k = 3) and the channels-last products of [`crate::FastEncoder`] take them; or,
 /// `flipped`, those of the input gradient, the convolution of `dy` with the kernel turned by
 /// 180° and its channels swapped: `[k²o, c]`, `W'[(ky, kx, o), ci] = W[o, ci, k−1−ky, k−1−kx]`.
-pub(super) fn taps_major(w: &[f32], [o, c, k]: [usize; 3], flipped: bool) -> Vec<f32> {
+pub(crate) fn taps_major(w: &[f32], [o, c, k]: [usize; 3], flipped: bool) -> Vec<f32> {
     let kk = k * k;
     assert_eq!(w.len(), o * c * kk, "taps_major: weights of another shape");
     let mut out = unwritten(kk * c * o);

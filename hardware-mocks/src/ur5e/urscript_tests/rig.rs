@@ -6,10 +6,10 @@ use rig_core::pose::{Pose, pose_trans, rotation_distance, translation_distance};
 use rig_core::rtde::Value as Rtde;
 
 use super::super::controller::Controller;
+use super::super::urscript::Program;
 use super::super::urscript::WatchdogAction;
 use super::super::variables::{InputSink, resolve_input};
-use super::Program;
-use super::tests::{P, controller_with_tool, home, out_int};
+use super::{P, controller_with_tool, home, out_int};
 
 const TCP: [f64; 6] = [0.0, 0.0, 0.1, 0.0, 0.0, 0.0];
 

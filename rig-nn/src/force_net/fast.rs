@@ -22,13 +22,21 @@
 //! batch. A test checks the result against burn's forward on several shapes.
 
 use burn::module::Param;
+use burn::nn::BatchNorm;
 use burn::nn::conv::Conv2d;
-use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use gemm::Parallelism;
 
-use super::kernels::{taps_major, three_rows};
-use super::{Encoder, ResUnit};
+use super::{Encoder, ForceNet, ResUnit};
+use crate::cpu::{symmetric, taps_major, three_rows};
+
+impl ForceNet {
+    /// The encoder compiled for CPU inference (see [`FastEncoder`]), `None` if it has a layer
+    /// that form does not cover.
+    pub fn fast_encoder(&self) -> Option<FastEncoder> {
+        FastEncoder::new(&self.encoder)
+    }
+}
 
 /// One convolution with its batch norm folded in.
 #[derive(Debug, Clone)]
@@ -88,15 +96,6 @@ fn values<const D: usize>(t: Tensor<D>) -> Option<Vec<f32>> {
 
 fn param<const D: usize>(p: &Param<Tensor<D>>) -> Option<Vec<f32>> {
     values(p.val())
-}
-
-/// The symmetric padding of a conv or pool, when it has one.
-pub(super) fn symmetric(p: &PaddingConfig2d) -> Option<usize> {
-    match *p {
-        PaddingConfig2d::Valid => Some(0),
-        PaddingConfig2d::Explicit(t, l, b, r) if t == l && l == b && b == r => Some(t),
-        _ => None,
-    }
 }
 
 impl Conv {

@@ -21,12 +21,6 @@
 //! (docs/experiments.md, *The trainer beside PyTorch*). Anything other than one group, no
 //! dilation, a square kernel, equal strides and paddings, a bias and f32 on the flex device goes
 //! to burn's `ConvTranspose2d::forward`.
-//!
-//! The same relation serves the other way for a stride-1 convolution with few output channels
-//! (the generator's 7 × 7 head, 32 → 3): its input gradient is the forward of the "full"
-//! convolution of `dy` by the turned kernel ([`turned_input_grad`]), and its weight gradient
-//! one sum per tap over the input put channels-last ([`few_outputs_weight_grad`]), instead of
-//! the unrolled path's products with three rows against a large unrolling.
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -40,7 +34,7 @@ use burn::tensor::Tensor;
 use rayon::prelude::*;
 
 use super::conv::{Want, backward, forward, on_cpu_kernels};
-use super::kernels::{add_into, dense, flex, to_pixels, unwritten, written};
+use super::kernels::{dense, flex};
 use super::lanes;
 use super::unroll::Geom;
 
@@ -182,96 +176,6 @@ impl<C: CheckpointStrategy> TrainDeconv for Autodiff<Flex, C> {
     }
 }
 
-/// Whether a convolution's input gradient goes through [`turned_input_grad`]: stride 1, at
-/// most four output channels (the generator's 7 × 7 head, 32 → 3), padding below the kernel.
-/// The unrolled path would multiply `Wᵀ · dy` into a `c·k·k × pixels` unrolling with only `o`
-/// terms a sum and fold it back (`col2im`): for the head 1568 × 768 floats an image, written
-/// and read again for 3 terms each, which made its backward the costliest layer of a CycleGAN
-/// step.
-pub(super) fn turns(g: &Geom) -> bool {
-    g.s == 1 && g.o <= 4 && g.p < g.k
-}
-
-/// The input gradient of a stride-1 convolution `g` (`[n, c, h, w]` in, `o` channels out, a
-/// `k × k` kernel `w` of `[o, c, k, k]`, padding `p`) as a forward convolution of `dy` into `c`
-/// channels by the kernel turned by 180° with its channel axes swapped, padding `k − 1 − p`
-/// (the "full" convolution; Dumoulin and Visin 2016, §4.1): an unrolling of `o·k·k` rows and
-/// `c` outputs a pixel. `acc` (of the input's shape) is added in.
-pub(super) fn turned_input_grad(
-    g: &Geom,
-    weight: &[f32],
-    dy: &[f32],
-    acc: Option<&[f32]>,
-) -> Vec<f32> {
-    let (n, c, o, k) = (g.n, g.c, g.o, g.k);
-    let mut turned = vec![0.0f32; weight.len()];
-    for (ci, kernels) in turned.chunks_mut(o * k * k).enumerate() {
-        for (oi, taps) in kernels.chunks_mut(k * k).enumerate() {
-            let from = &weight[(oi * c + ci) * k * k..][..k * k];
-            for (t, v) in taps.iter_mut().enumerate() {
-                *v = from[k * k - 1 - t];
-            }
-        }
-    }
-    let full = Geom::new([n, o, g.ho, g.wo], c, k, 1, k - 1 - g.p);
-    let (mut dx, _) = forward(&full, dy, &turned, None, false);
-    if let Some(acc) = acc {
-        add_into(&mut dx, acc);
-    }
-    dx
-}
-
-/// Whether the weight gradient goes through [`few_outputs_weight_grad`]: besides [`turns`],
-/// no padding and input channels in sixteens (the head's 32).
-pub(super) fn few_outputs(g: &Geom) -> bool {
-    turns(g) && g.p == 0 && g.c.is_multiple_of(16)
-}
-
-/// The weight gradient of a stride-1, unpadded convolution with few output channels (see
-/// [`few_outputs`]): `dw[o, c, ky, kx] = Σ_images Σ_(y, x) dy[o, y, x] · x[c, y + ky, x + kx]`,
-/// the images put channels-last once, then a task per tap ([`lanes::tap_grad`]). The unrolled
-/// path's product `dy · colᵀ` has `o` rows: for the head, three rows against a 1568 × 768
-/// unrolling written for them alone. With the input gradient already turned, the head's
-/// backward at batch 4 took 1.4 ms on that product and 0.6 ms with this sum (2026-11-30).
-pub(super) fn few_outputs_weight_grad(g: &Geom, x: &[f32], dy: &[f32]) -> Vec<f32> {
-    let (n, c, w, o, k, ho, wo) = (g.n, g.c, g.w, g.o, g.k, g.ho, g.wo);
-    let plane = g.h * w;
-    let mut xcl = unwritten(n * c * plane);
-    xcl.par_chunks_mut(c * plane)
-        .zip(x.par_chunks(c * plane))
-        .for_each(|(dst, src)| to_pixels(src, [c, plane], plane, dst));
-    // SAFETY: `to_pixels` wrote each image's `plane` pixels of `c` floats: every element.
-    let xcl = unsafe { written(xcl) };
-    let zeros = vec![0.0f32; ho * wo];
-    let images: Vec<(&[f32], [&[f32]; 4])> = (0..n)
-        .map(|i| {
-            let planes = std::array::from_fn(|oi| {
-                if oi < o {
-                    &dy[(i * o + oi) * ho * wo..][..ho * wo]
-                } else {
-                    &zeros[..]
-                }
-            });
-            (&xcl[i * c * plane..][..c * plane], planes)
-        })
-        .collect();
-    let by_tap: Vec<Vec<f32>> = (0..k * k)
-        .into_par_iter()
-        .map(|t| {
-            let mut out = vec![0.0f32; o * c];
-            lanes::tap_grad(&images, [c, w, ho, wo], [t / k, t % k], &mut out);
-            out
-        })
-        .collect();
-    let mut dw = vec![0.0f32; o * c * k * k];
-    for (t, tap) in by_tap.iter().enumerate() {
-        for (oc, &v) in tap.iter().enumerate() {
-            dw[oc * k * k + t] = v;
-        }
-    }
-    dw
-}
-
 /// `layer.forward(x)`: on [`super::conv`]'s kernels where the layer and the device are covered
 /// (module docs), else burn's.
 pub fn conv_transpose2d(layer: &ConvTranspose2d, x: Tensor<4>) -> Tensor<4> {
@@ -307,7 +211,7 @@ mod tests {
     use burn::nn::conv::ConvTranspose2dConfig;
     use burn::tensor::{Device, Distribution};
 
-    use crate::train::nn::tests::{close_to_largest as close, values};
+    use crate::testing::{close_to_largest as close, values};
 
     /// Ours against burn's `ConvTranspose2d::forward`: values, and the gradients of `Σ y ⊙ r`
     /// with respect to the input, weight and bias.

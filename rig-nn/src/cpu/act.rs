@@ -94,8 +94,8 @@ mod tests {
     use super::*;
     use burn::tensor::{Device, Distribution};
 
-    use crate::train::nn::kernels::BLOCK;
-    use crate::train::nn::tests::values;
+    use crate::cpu::kernels::BLOCK;
+    use crate::testing::values;
 
     #[test]
     fn the_leaky_relu_matches_burns_values_and_gradient_exactly() {

@@ -555,7 +555,7 @@ mod tests {
     use burn::nn::{BatchNormConfig, InstanceNormConfig};
     use burn::tensor::{Device, Distribution};
 
-    use crate::train::nn::tests::{close_to_largest as close, values};
+    use crate::testing::{close_to_largest as close, values};
 
     /// Ours against burn's `BatchNorm::forward` in training (then `+ r0` if `residual`, then
     /// burn's ReLU if `with_relu`): output, the gradients of `Σ y ⊙ r` with respect to the

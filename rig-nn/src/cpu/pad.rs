@@ -176,7 +176,7 @@ mod tests {
     use super::*;
     use burn::tensor::{Device, Distribution};
 
-    use crate::train::nn::tests::{close_to_largest as close, values};
+    use crate::testing::{close_to_largest as close, values};
 
     /// Ours against burn's reflect pad: values, and the gradient of `Σ y ⊙ r`.
     fn check_against_burn(dims: [usize; 4], p: usize) {

@@ -6,8 +6,8 @@ use rig_core::control::runtime_state;
 use rig_core::pose::{Pose, rotation_distance, translation_distance};
 
 use super::super::controller::CONTROLLER_STOP_DECEL;
-use super::Program;
-use super::tests::{P, controller_with_tool, home, out_float, out_int, playing, ticks};
+use super::super::urscript::Program;
+use super::{P, controller_with_tool, home, out_float, out_int, playing, ticks};
 
 const PI: &str = "3.141592653589793";
 
@@ -65,7 +65,7 @@ fn movel_refuses_bad_parameters_with_an_error_that_stops_the_program() {
         ),
     ] {
         let text = format!("x = 1\n{call}\n");
-        let e = super::tests::runtime_error(&text, 1);
+        let e = super::runtime_error(&text, 1);
         assert_eq!(e.line, 2, "{call}: {e}");
         assert!(e.msg.contains(what), "{call}: {e}");
         let mut c = playing(&text);

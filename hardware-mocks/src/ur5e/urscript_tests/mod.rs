@@ -4,10 +4,15 @@
 use rig_core::control::{robot_mode, runtime_state};
 use rig_core::pose::Pose;
 
-use super::super::controller::Controller;
-use super::super::snapshot::ControllerSnapshot;
-use super::lexer::{Tok, lex};
-use super::{Interpreter, Program, RuntimeError, ScriptError, Value, WatchdogAction};
+use super::controller::Controller;
+use super::snapshot::ControllerSnapshot;
+use super::urscript::lexer::{Tok, lex};
+use super::urscript::{
+    Interpreter, Program, RuntimeError, ScriptError, Value, WatchdogAction, is_closed, is_complete,
+};
+
+mod motion;
+mod rig;
 
 /// Controller period, ns (500 Hz).
 pub(super) const P: u64 = 2_000_000;
@@ -403,20 +408,20 @@ fn textmsg_and_math_builtins() {
 #[test]
 fn completeness_of_uploads() {
     let rig = rig_core::urscript::program(10.0, None);
-    assert!(super::is_complete(&rig));
+    assert!(is_complete(&rig));
     let cut = rig
         .rfind(&format!("{}()", rig_core::control::PROGRAM_NAME))
         .unwrap();
     // Up to the def's `end`: closed, but not complete (the call may follow).
-    assert!(!super::is_complete(&rig[..cut]));
-    assert!(super::is_closed(&rig[..cut]));
+    assert!(!is_complete(&rig[..cut]));
+    assert!(is_closed(&rig[..cut]));
     for n in [10, 100, rig.len() / 2, rig.len() - 1] {
-        assert!(!super::is_complete(&rig[..n]), "{n}");
+        assert!(!is_complete(&rig[..n]), "{n}");
     }
-    assert!(super::is_complete("x = 1\n"));
-    assert!(!super::is_complete("x = 1"));
-    assert!(!super::is_complete("# only a comment\n"));
-    assert!(!super::is_complete("def f():\n  x = \"end\"\n"));
+    assert!(is_complete("x = 1\n"));
+    assert!(!is_complete("x = 1"));
+    assert!(!is_complete("# only a comment\n"));
+    assert!(!is_complete("def f():\n  x = \"end\"\n"));
 }
 
 /// A small deterministic generator (xorshift64*), so the fuzz test needs no dependency.
@@ -435,7 +440,7 @@ impl Rng {
 
 /// Runs a text that may or may not parse for a few cycles: must never panic.
 fn try_everything(text: &str) {
-    let _ = super::is_complete(text);
+    let _ = is_complete(text);
     let Ok(program) = Program::parse(text) else {
         return;
     };

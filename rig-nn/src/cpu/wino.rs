@@ -287,7 +287,7 @@ pub(super) fn convolve(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::nn::kernels::{as_slots, border, taps_major};
+    use crate::cpu::kernels::{as_slots, border, taps_major};
 
     /// Uniform in `[-1, 1)` from a fixed linear congruential sequence.
     fn uniform(state: &mut u64) -> f32 {
