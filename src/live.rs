@@ -22,13 +22,18 @@
 //! - A handshake whose `Origin` header names a page not served by this machine gets HTTP 403,
 //!   so a web page open in a browser on the rig's machine cannot read the run; clients
 //!   without `Origin` (scripts, non-browser clients) and `http(s)://localhost[:port]`,
-//!   `127.0.0.1`, `[::1]` pages are served. (A hosted web app, such as Foxglove's own site,
-//!   is a foreign origin and refused.)
+//!   `127.0.0.1`, `[::1]` pages are served. A hosted web app, such as Foxglove's own
+//!   `https://app.foxglove.dev`, is a foreign origin: refused unless the operator names it
+//!   ([`AllowedOrigin`], `--live-allow-origin`), and then that origin exactly.
 //! - [`LiveLimits`] bounds what clients can make it hold: [`MAX_CLIENTS`] connections (one past
 //!   it gets an error `status` and a close frame), [`MAX_SUBSCRIPTIONS`] per client (the excess
 //!   of a `subscribe` is refused with an error `status`), [`MAX_MESSAGE_BYTES`] per incoming
-//!   message (a bigger one closes that client), and [`HANDSHAKE_TIMEOUT`] to complete the
-//!   handshake (a connection that stalls in it is closed).
+//!   message (a bigger one closes that client), [`HANDSHAKE_TIMEOUT`] to complete the
+//!   handshake (a connection that stalls in it is closed), [`MAX_PENDING_HANDSHAKES`]
+//!   connections in the handshake at once (one more is closed at once, before any byte is
+//!   read), and [`IDLE_TIMEOUT`] for a client to read: the server pings every client a few
+//!   times per period, and one that has answered none of them for that long (it does not read
+//!   its socket, or is gone) is closed and its place freed.
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -39,7 +44,7 @@ use std::time::Duration;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{Semaphore, mpsc, oneshot};
 use tokio::task::JoinHandle;
 use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::handshake::server::{ErrorResponse, Request, Response};
@@ -56,6 +61,8 @@ use crate::record::legacy::base64;
 mod origin;
 #[cfg(test)]
 mod tests;
+
+pub use origin::AllowedOrigin;
 
 /// The WebSocket subprotocol of the Foxglove WebSocket protocol.
 pub const SUBPROTOCOL: &str = "foxglove.websocket.v1";
@@ -80,6 +87,19 @@ pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
 /// and a connection that never completes the handshake does not hold a task and a socket for
 /// good.
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+/// Connections in the handshake (or being refused past [`MAX_CLIENTS`]) at once; one more is
+/// closed as soon as it is accepted. Twice the clients served leaves room for every window of
+/// the Foxglove app reconnecting at once, and bounds the tasks and sockets that connections
+/// which never complete a handshake can hold for [`HANDSHAKE_TIMEOUT`] each.
+pub const MAX_PENDING_HANDSHAKES: usize = 2 * MAX_CLIENTS;
+/// How long a client may go without reading before it is closed: the server pings it
+/// [`PINGS_PER_IDLE`] times per period, and a client that answered none for this long does not
+/// read its socket (or is gone). Browsers answer pings in their network stack, even for a
+/// background tab, so a Foxglove window left open is never idle; 30 s let a loaded machine
+/// catch up with a burst of image frames first.
+pub const IDLE_TIMEOUT: Duration = Duration::from_secs(30);
+/// Pings sent per [`IDLE_TIMEOUT`].
+const PINGS_PER_IDLE: u32 = 3;
 
 /// Foxglove `status` levels.
 const STATUS_ERROR: u8 = 2;
@@ -95,6 +115,10 @@ pub struct LiveLimits {
     pub max_message_bytes: usize,
     /// Time to complete the handshake (and to answer a close) before the socket is closed.
     pub handshake_timeout: Duration,
+    /// Connections in the handshake at once; one more is closed at once.
+    pub max_pending_handshakes: usize,
+    /// Time without answering a ping before a client is closed.
+    pub idle_timeout: Duration,
 }
 
 impl Default for LiveLimits {
@@ -104,8 +128,20 @@ impl Default for LiveLimits {
             max_subscriptions: MAX_SUBSCRIPTIONS,
             max_message_bytes: MAX_MESSAGE_BYTES,
             handshake_timeout: HANDSHAKE_TIMEOUT,
+            max_pending_handshakes: MAX_PENDING_HANDSHAKES,
+            idle_timeout: IDLE_TIMEOUT,
         }
     }
+}
+
+/// What a [`LiveView`] starts with besides its address.
+#[derive(Debug, Clone, Default)]
+pub struct LiveOptions {
+    pub limits: LiveLimits,
+    /// Channels advertised after the recording's.
+    pub extra: Vec<ExtraChannel>,
+    /// Origins served besides this machine's pages (`--live-allow-origin`).
+    pub allowed_origins: Vec<AllowedOrigin>,
 }
 
 /// Counters of a [`LiveView`].
@@ -115,6 +151,10 @@ pub struct LiveStats {
     pub sent: u64,
     /// Messages a slow client's full queue refused.
     pub dropped: u64,
+    /// Connections closed unread because [`LiveLimits::max_pending_handshakes`] were pending.
+    pub handshakes_refused: u64,
+    /// Clients closed for not reading ([`LiveLimits::idle_timeout`]).
+    pub idle_closed: u64,
 }
 
 struct Client {
@@ -138,10 +178,14 @@ pub struct ExtraChannel {
 struct Shared {
     /// Channels advertised after the recording's.
     extra: Vec<ExtraChannel>,
+    /// Origins served besides this machine's pages.
+    allowed_origins: Vec<AllowedOrigin>,
     clients: Mutex<HashMap<u64, Client>>,
     next_client: AtomicU64,
     sent: AtomicU64,
     dropped: AtomicU64,
+    handshakes_refused: AtomicU64,
+    idle_closed: AtomicU64,
 }
 
 impl Shared {
@@ -254,6 +298,28 @@ impl LiveView {
         limits: LiveLimits,
         extra: Vec<ExtraChannel>,
     ) -> std::io::Result<LiveView> {
+        Self::start_with_options(
+            bind,
+            LiveOptions {
+                limits,
+                extra,
+                ..LiveOptions::default()
+            },
+        )
+        .await
+    }
+
+    /// Binds `bind` (a loopback address only) and serves clients in the background, as
+    /// `options` say.
+    pub async fn start_with_options(
+        bind: SocketAddr,
+        options: LiveOptions,
+    ) -> std::io::Result<LiveView> {
+        let LiveOptions {
+            limits,
+            extra,
+            allowed_origins,
+        } = options;
         let invalid = |msg: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, msg);
         if !bind.ip().is_loopback() {
             return Err(invalid(format!(
@@ -265,6 +331,8 @@ impl LiveView {
             || limits.max_subscriptions == 0
             || limits.max_message_bytes == 0
             || limits.handshake_timeout.is_zero()
+            || limits.max_pending_handshakes == 0
+            || limits.idle_timeout.is_zero()
         {
             return Err(invalid(format!(
                 "every live view limit must be at least 1 (got {limits:?})"
@@ -274,14 +342,31 @@ impl LiveView {
         let addr = listener.local_addr()?;
         let shared = Arc::new(Shared {
             extra,
+            allowed_origins,
             ..Shared::default()
         });
         let s = shared.clone();
+        let pending = Arc::new(Semaphore::new(limits.max_pending_handshakes));
         let task = tokio::spawn(async move {
             loop {
                 match listener.accept().await {
                     Ok((stream, peer)) => {
-                        tokio::spawn(serve(stream, peer, s.clone(), limits));
+                        // A place among the pending handshakes, held until the client is
+                        // admitted or refused; none left: closed before anything is read.
+                        let Ok(place) = pending.clone().try_acquire_owned() else {
+                            let n = s.handshakes_refused.fetch_add(1, Ordering::Relaxed);
+                            if n.is_multiple_of(100) {
+                                tracing::warn!(
+                                    "live view: closed {peer} unread: {} connections are already \
+                                     in the handshake ({} refused so far)",
+                                    limits.max_pending_handshakes,
+                                    n + 1
+                                );
+                            }
+                            drop(stream);
+                            continue;
+                        };
+                        tokio::spawn(serve(stream, peer, s.clone(), limits, place));
                     }
                     Err(e) => {
                         tracing::warn!("live view: accept failed: {e}");
@@ -358,6 +443,8 @@ impl LiveView {
             clients: self.shared.clients().len() as u64,
             sent: self.shared.sent.load(Ordering::Relaxed),
             dropped: self.shared.dropped.load(Ordering::Relaxed),
+            handshakes_refused: self.shared.handshakes_refused.load(Ordering::Relaxed),
+            idle_closed: self.shared.idle_closed.load(Ordering::Relaxed),
         }
     }
 
@@ -375,20 +462,38 @@ impl Drop for LiveView {
     }
 }
 
-/// The handshake's check: a local `Origin` or none (else HTTP 403), and the Foxglove
-/// subprotocol picked when offered.
+/// The handshake's check: a local `Origin`, one of `allowed`, or none (else HTTP 403), and
+/// the Foxglove subprotocol picked when offered.
 #[allow(clippy::result_large_err)] // the callback's signature is tungstenite's
-fn check_handshake(req: &Request, mut resp: Response) -> Result<Response, ErrorResponse> {
+fn check_handshake(
+    allowed: &[AllowedOrigin],
+    req: &Request,
+    mut resp: Response,
+) -> Result<Response, ErrorResponse> {
     let origins: Vec<&HeaderValue> = req.headers().get_all("Origin").iter().collect();
+    let admitted = |o: &str| origin::is_local_origin(o) || allowed.iter().any(|a| a.admits(o));
     if let Some(bad) = origins
         .iter()
-        .find(|o| origins.len() > 1 || !o.to_str().is_ok_and(origin::is_local_origin))
+        .find(|o| origins.len() > 1 || !o.to_str().is_ok_and(admitted))
     {
+        let named = if allowed.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " and the origins allowed with --live-allow-origin ({})",
+                allowed
+                    .iter()
+                    .map(AllowedOrigin::as_str)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        };
         let mut refusal = ErrorResponse::new(Some(format!(
             "The rig's live view serves pages of this machine only (http://localhost, \
-             127.0.0.1 or [::1]); Origin {bad:?} is refused. Connect from a client that sends no \
-             Origin or from a page served by localhost, on the rig's machine (or through an \
-             SSH tunnel).\n"
+             127.0.0.1 or [::1]){named}; Origin {bad:?} is refused. Connect from a client that \
+             sends no Origin or from a page served by localhost, on the rig's machine (or \
+             through an SSH tunnel); to admit a hosted app such as Foxglove's, start the rig \
+             with --live-allow-origin and its origin (e.g. https://app.foxglove.dev).\n"
         )));
         *refusal.status_mut() = StatusCode::FORBIDDEN;
         return Err(refusal);
@@ -467,8 +572,15 @@ fn handle_request(shared: &Shared, id: u64, text: &str, max_subs: usize) -> Opti
 }
 
 /// One client: handshake (within the time limit), admission (within the client limit),
-/// serverInfo + advertise, then its requests.
-async fn serve(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>, limits: LiveLimits) {
+/// serverInfo + advertise, then its requests while it keeps reading. `place` is its place
+/// among the pending handshakes, given back once it is admitted or refused.
+async fn serve(
+    stream: TcpStream,
+    peer: SocketAddr,
+    shared: Arc<Shared>,
+    limits: LiveLimits,
+    place: tokio::sync::OwnedSemaphorePermit,
+) {
     if !peer.ip().is_loopback() {
         tracing::warn!("live view: refused {peer}, not a loopback peer");
         return;
@@ -476,8 +588,13 @@ async fn serve(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>, limits:
     let config = WebSocketConfig::default()
         .max_message_size(Some(limits.max_message_bytes))
         .max_frame_size(Some(limits.max_message_bytes));
-    let handshake =
-        tokio_tungstenite::accept_hdr_async_with_config(stream, check_handshake, Some(config));
+    let check = {
+        let shared = shared.clone();
+        // The callback's signature is tungstenite's.
+        #[allow(clippy::result_large_err)]
+        move |req: &Request, resp: Response| check_handshake(&shared.allowed_origins, req, resp)
+    };
+    let handshake = tokio_tungstenite::accept_hdr_async_with_config(stream, check, Some(config));
     let ws = match tokio::time::timeout(limits.handshake_timeout, handshake).await {
         Ok(Ok(ws)) => ws,
         Ok(Err(e)) => {
@@ -520,14 +637,50 @@ async fn serve(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>, limits:
         refuse_client(ws, peer, limits).await;
         return;
     }
+    drop(place);
     tracing::info!("live view: {peer} connected");
     let (sink, mut source) = ws.split();
     let (close_tx, close_rx) = oneshot::channel();
     let mut close_tx = Some(close_tx);
-    let mut writer = tokio::spawn(write_loop(sink, rx, close_rx));
-    while let Some(msg) = source.next().await {
+    let pings = Pings::new();
+    let mut writer = tokio::spawn(write_loop(
+        sink,
+        rx,
+        close_rx,
+        pings.clone(),
+        limits.idle_timeout / PINGS_PER_IDLE,
+    ));
+    // The last sign that the client reads: the handshake, then each answer to a ping.
+    let mut last_read = tokio::time::Instant::now();
+    loop {
+        let msg = tokio::select! {
+            m = source.next() => match m {
+                Some(m) => m,
+                None => break,
+            },
+            () = tokio::time::sleep_until(last_read + limits.idle_timeout) => {
+                shared.idle_closed.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    "live view: {peer} answered no ping for {:?} (it does not read); closing it",
+                    limits.idle_timeout
+                );
+                if let Some(close) = close_tx.take() {
+                    let _ = close.send(CloseFrame {
+                        code: CloseCode::Policy,
+                        reason: "not reading".into(),
+                    });
+                }
+                break;
+            }
+        };
         let text = match msg {
             Ok(Message::Text(t)) => t,
+            Ok(Message::Pong(payload)) => {
+                if pings.answered(&payload) {
+                    last_read = tokio::time::Instant::now();
+                }
+                continue;
+            }
             Ok(Message::Close(_)) => break,
             Err(WsError::Capacity(e)) => {
                 tracing::warn!(
@@ -564,13 +717,56 @@ async fn serve(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>, limits:
     tracing::info!("live view: {peer} disconnected");
 }
 
-/// Sends a client's queue to it until the queue ends (the client was removed) or a close frame
-/// is due, then closes the connection.
+/// The pings sent to one client, so that only an answer to one of them counts as reading: a
+/// client that never reads cannot keep its place with pongs of its own. Each ping's payload is
+/// this client's random key and the ping's number.
+#[derive(Clone)]
+struct Pings {
+    key: u64,
+    sent: Arc<AtomicU64>,
+}
+
+impl Pings {
+    fn new() -> Self {
+        use std::hash::{BuildHasher, Hasher};
+        // std's per-process random keys: unguessable enough for a loopback client.
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u64(u64::from(std::process::id()));
+        Self {
+            key: h.finish(),
+            sent: Arc::new(AtomicU64::new(0)),
+        }
+    }
+
+    /// The payload of the next ping.
+    fn next(&self) -> Vec<u8> {
+        let n = self.sent.fetch_add(1, Ordering::Relaxed) + 1;
+        [self.key.to_le_bytes(), n.to_le_bytes()].concat()
+    }
+
+    /// Whether `payload` answers a ping sent to this client.
+    fn answered(&self, payload: &[u8]) -> bool {
+        let (Some(key), Some(n)) = (payload.get(..8), payload.get(8..16)) else {
+            return false;
+        };
+        let n = u64::from_le_bytes(n.try_into().unwrap_or_default());
+        payload.len() == 16
+            && key == self.key.to_le_bytes()
+            && (1..=self.sent.load(Ordering::Relaxed)).contains(&n)
+    }
+}
+
+/// Sends a client's queue to it, and a ping every `ping_every`, until the queue ends (the
+/// client was removed) or a close frame is due, then closes the connection.
 async fn write_loop(
     mut sink: SplitSink<WebSocketStream<TcpStream>, Message>,
     mut rx: mpsc::Receiver<Message>,
     mut close: oneshot::Receiver<CloseFrame>,
+    pings: Pings,
+    ping_every: Duration,
 ) {
+    let mut ticks = tokio::time::interval_at(tokio::time::Instant::now() + ping_every, ping_every);
+    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         tokio::select! {
             biased;
@@ -579,6 +775,11 @@ async fn write_loop(
                     let _ = sink.send(Message::Close(Some(frame))).await;
                 }
                 break;
+            }
+            _ = ticks.tick() => {
+                if sink.send(Message::Ping(pings.next().into())).await.is_err() {
+                    break;
+                }
             }
             m = rx.recv() => match m {
                 Some(m) => {

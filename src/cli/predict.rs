@@ -65,6 +65,10 @@ pub struct PredictArgs {
     /// loopback address (default 127.0.0.1:8765).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     pub live: Option<std::net::SocketAddr>,
+    /// Also serve the live view to pages of this origin (SCHEME://HOST[:PORT], e.g.
+    /// https://app.foxglove.dev for Foxglove's web app). Repeatable.
+    #[arg(long, value_name = "ORIGIN", requires = "live")]
+    pub live_allow_origin: Vec<crate::live::AllowedOrigin>,
     /// Also write the estimates into this MCAP file (`/predict/wrench`).
     #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
@@ -175,10 +179,13 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<Summary> {
     let live = match args.live {
         Some(addr) => {
             let live = rt
-                .block_on(crate::live::LiveView::start_with_channels(
+                .block_on(crate::live::LiveView::start_with_options(
                     addr,
-                    crate::live::LiveLimits::default(),
-                    vec![predicted_channel()],
+                    crate::live::LiveOptions {
+                        extra: vec![predicted_channel()],
+                        allowed_origins: args.live_allow_origin.clone(),
+                        ..crate::live::LiveOptions::default()
+                    },
                 ))
                 .map_err(|e| anyhow::anyhow!("cannot start the live view on {addr}: {e}"))?;
             eprintln!(

@@ -39,13 +39,18 @@ pub struct RunArgs {
     pub sim_ft: SimFt,
     /// Simulated rig only: inject a fault (a drill for operators, and the fault tests):
     /// KIND@TRAJECTORY/STAGE[+MS], KIND one of protective-stop, rtde-drop, ft-unplug,
-    /// camera-stall, supervisor-freeze; MS is clock time after the stage starts. Repeatable.
+    /// camera-stall, supervisor-freeze, disk-stall; MS is clock time after the stage starts.
+    /// Repeatable.
     #[arg(long, value_name = "FAULT")]
     pub sim_fault: Vec<crate::simrig::SimFault>,
     /// Serve a live view for the Foxglove app (Foxglove WebSocket) on this loopback address
     /// while the run records (default 127.0.0.1:8765).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     pub live: Option<std::net::SocketAddr>,
+    /// Also serve the live view to pages of this origin (SCHEME://HOST[:PORT], e.g.
+    /// https://app.foxglove.dev for Foxglove's web app). Repeatable.
+    #[arg(long, value_name = "ORIGIN", requires = "live")]
+    pub live_allow_origin: Vec<crate::live::AllowedOrigin>,
     /// Simulated rig only: keep the contact physics' tapes in DIR (default ~/.cache/rig/contact,
     /// or $RIG_CONTACT_CACHE) and replay the ones a run with the same gel, indenter and physics
     /// left there (simulate once, render per sensor): a second sensor's run renders its own
@@ -117,8 +122,14 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         let live = match args.live {
             Some(addr) => {
                 let live = std::sync::Arc::new(
-                    crate::live::LiveView::start(addr)
-                        .await
+                    crate::live::LiveView::start_with_options(
+                        addr,
+                        crate::live::LiveOptions {
+                            allowed_origins: args.live_allow_origin.clone(),
+                            ..crate::live::LiveOptions::default()
+                        },
+                    )
+                    .await
                         .map_err(|e| anyhow::anyhow!("cannot start the live view on {addr}: {e}"))?,
                 );
                 eprintln!(
@@ -143,6 +154,15 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         summary
     })?;
     print!("{}", summary.report());
+    if let Some(why) = &summary.recording_stalled {
+        // The dataset check would read the stalled disk too, and wait on it for ever.
+        anyhow::bail!(
+            "the run stopped: {why}\nthe arm was stopped and left clear of the gel; the \
+             recording in {} is as the disk last took it (`rig dataset check` shows what is \
+             missing once it answers again)",
+            out.display()
+        );
+    }
     let report = crate::dataset::check(&out);
     if report.ok() {
         println!(

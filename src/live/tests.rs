@@ -287,3 +287,144 @@ async fn an_oversized_message_closes_that_client_only() {
         }
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_allowed_foreign_origin_is_served_and_every_other_one_still_gets_403() {
+    // By default Foxglove's web app is a foreign origin like any other.
+    let closed = start(LiveLimits::default()).await;
+    match handshake(&closed, Some("https://app.foxglove.dev")).await {
+        Err(WsError::Http(resp)) => assert_eq!(resp.status(), StatusCode::FORBIDDEN),
+        other => panic!("expected HTTP 403 by default, got {other:?}"),
+    }
+    let live = LiveView::start_with_options(
+        "127.0.0.1:0".parse().unwrap(),
+        LiveOptions {
+            allowed_origins: vec!["https://app.foxglove.dev".parse().unwrap()],
+            ..LiveOptions::default()
+        },
+    )
+    .await
+    .unwrap();
+    for origin in ["https://app.foxglove.dev", "https://APP.foxglove.dev:443"] {
+        let mut ws = handshake(&live, Some(origin))
+            .await
+            .unwrap_or_else(|e| panic!("{origin} refused: {e}"));
+        assert_eq!(text(&mut ws).await["op"], "serverInfo", "{origin}");
+        assert_eq!(text(&mut ws).await["op"], "advertise", "{origin}");
+    }
+    for origin in [
+        "https://app.foxglove.dev.evil.com",
+        "http://app.foxglove.dev",
+        "https://app.foxglove.dev:8443",
+        "https://evil.example",
+    ] {
+        match handshake(&live, Some(origin)).await {
+            Err(WsError::Http(resp)) => {
+                assert_eq!(resp.status(), StatusCode::FORBIDDEN, "{origin}");
+                let body = String::from_utf8(resp.body().clone().unwrap_or_default()).unwrap();
+                assert!(
+                    body.contains(origin) && body.contains("https://app.foxglove.dev"),
+                    "{body}"
+                );
+            }
+            other => panic!("{origin}: expected HTTP 403, got {other:?}"),
+        }
+    }
+    // This machine's pages are still served beside the allowed origin.
+    let mut local = handshake(&live, Some("http://localhost:8080"))
+        .await
+        .unwrap();
+    assert_eq!(text(&mut local).await["op"], "serverInfo");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_does_not_read_is_closed_after_the_idle_time_and_a_reading_one_stays() {
+    let idle = Duration::from_secs(1);
+    let live = start(LiveLimits {
+        idle_timeout: idle,
+        ..LiveLimits::default()
+    })
+    .await;
+    // Neither subscribes to anything; one reads its socket (and so answers the pings), the
+    // other never reads again after the advertise.
+    let mut asleep = connect(&live).await;
+    let mut awake = connect(&live).await;
+    assert_eq!(live.stats().clients, 2);
+    let mut pings = 0;
+    let watch = async {
+        while let Some(m) = awake.next().await {
+            if matches!(m, Ok(Message::Ping(_))) {
+                pings += 1;
+            }
+        }
+    };
+    // Three idle periods of reading.
+    let ended = tokio::time::timeout(3 * idle, watch).await;
+    assert!(ended.is_err(), "the reading client's connection ended");
+    assert!(pings >= 3, "{pings} pings in three idle periods");
+    let stats = live.stats();
+    assert_eq!(
+        (stats.idle_closed, stats.clients),
+        (1, 1),
+        "the sleeping client closed, the reading one kept: {stats:?}"
+    );
+    // What the sleeping client finds when it reads at last: the pings it never answered, then
+    // a close frame saying why, or the end of the connection (its late answer to a ping can
+    // meet the closed socket before it reads the close frame).
+    loop {
+        match next(&mut asleep).await {
+            Some(Ok(Message::Ping(_))) => continue,
+            Some(Ok(Message::Close(Some(f)))) => {
+                assert_eq!(f.code, CloseCode::Policy);
+                assert_eq!(f.reason.as_str(), "not reading");
+                break;
+            }
+            None | Some(Err(_)) => break,
+            other => panic!("expected pings then the close, got {other:?}"),
+        }
+    }
+    // Its place is free again.
+    let _next = connect(&live).await;
+    assert_eq!(live.stats().clients, 2);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_past_the_pending_handshake_cap_are_closed_unread() {
+    // A handshake time far longer than the test: only the cap can close the third connection.
+    let live = start(LiveLimits {
+        max_pending_handshakes: 2,
+        handshake_timeout: Duration::from_secs(600),
+        ..LiveLimits::default()
+    })
+    .await;
+    let first = TcpStream::connect(live.addr()).await.unwrap();
+    let second = TcpStream::connect(live.addr()).await.unwrap();
+    let mut third = TcpStream::connect(live.addr()).await.unwrap();
+    let mut buf = [0u8; 64];
+    let n = tokio::time::timeout(Duration::from_secs(30), third.read(&mut buf))
+        .await
+        .expect("the connection past the cap was not closed")
+        .unwrap_or(0);
+    assert_eq!(n, 0, "got {:?}", String::from_utf8_lossy(&buf[..n]));
+    assert_eq!(live.stats().handshakes_refused, 1);
+    // The two pending ones are still open (nothing to read, no end of stream).
+    for (name, s) in [("first", &first), ("second", &second)] {
+        match s.try_read(&mut buf) {
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+            other => panic!("{name}: expected an open, silent connection, got {other:?}"),
+        }
+    }
+    // One of them going away frees its place: a handshake is served again.
+    drop(first);
+    let mut served = None;
+    for _ in 0..200 {
+        if let Ok(ws) = handshake(&live, None).await {
+            served = Some(ws);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let mut ws = served.expect("no handshake served after a pending one went away");
+    assert_eq!(text(&mut ws).await["op"], "serverInfo");
+    drop(second);
+}

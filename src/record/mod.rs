@@ -43,7 +43,7 @@ pub use channels::{
     CHANNELS, ImageFormat, Record, TOPIC_IMAGE, TOPIC_PAIRED, TOPIC_POSE, TOPIC_STAGE, TOPIC_WRENCH,
 };
 pub use manifest::{Counts, MANIFEST_NAME, Manifest, SensorInfo, Status, TrajectoryEntry};
-pub use pipeline::{Recorder, RecorderConfig, RecorderStats, WriterGate};
+pub use pipeline::{Recorder, RecorderConfig, RecorderStats, STALL_LIMIT, WriterGate};
 pub use reader::{FileContents, read_file};
 pub use resume::{ResumePlan, resume};
 pub use writer::{RecordError, TrajectoryWriter, final_name, partial_name};

@@ -10,38 +10,86 @@
 //! the manifest marks it failed with the error, later messages of that trajectory are discarded
 //! (they cannot be written) and [`Recorder::finish`] returns the error. Files of trajectories
 //! completed earlier are untouched.
+//!
+//! # A disk that stops answering
+//!
+//! A write that never returns (a disk gone away under a hard NFS mount, a USB disk that hung)
+//! reports no error: the writer thread just stays in it. So every wait on the writer
+//! ([`Recorder::begin`], [`Recorder::finish`], [`Recorder::abort`], [`Recorder::close`], and
+//! whatever else waits on it through [`Recorder::watch`]) gives up with
+//! [`RecordError::Stalled`] once the writer has held work for [`STALL_LIMIT`] (real time)
+//! without completing any of it. A slow disk that still completes a command now and then is
+//! never called stalled, however deep its queue. Once declared stalled, later waits give up at
+//! once, unless the writer has made progress since. The writer runs on a thread of its own, not
+//! tokio's blocking pool, so a runtime can shut down while it hangs; it keeps a duplicate of the
+//! output directory's lock while it lives, so no other run writes there until it ends (with the
+//! process, or with the disk's return). What it had saved stays as it was: the manifest is
+//! replaced atomically, so `--resume` finds the last version and redoes the rest.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
 
 use tokio::sync::{mpsc, oneshot};
-use tokio::task::JoinHandle;
 
 use super::channels::Record;
 use super::manifest::{Counts, Manifest, Status};
 use super::writer::{RecordError, TrajectoryWriter, check_id, final_name};
 
-/// Holds the writer thread while closed: a slow disk on demand (tests and demonstrations).
+/// How long the writer may hold work without completing any of it before the recording counts
+/// as stalled (see the module doc), real time. A healthy disk completes a message in
+/// milliseconds and an `fsync` of a trajectory file in well under a second; a USB disk waking
+/// up takes a few seconds. Ten seconds with not one command done is a disk that is gone.
+pub const STALL_LIMIT: Duration = Duration::from_secs(10);
+
+/// Holds the writer thread while closed: a slow disk on demand (tests and demonstrations), or
+/// one that never comes back (the stalled-disk drill, `rig run --sim-fault disk-stall@…`).
+/// While closed, [`WriterGate::let_through`] lets a given number of commands pass: a disk that
+/// completes one write now and then.
 #[derive(Debug, Clone, Default)]
-pub struct WriterGate(Arc<(Mutex<bool>, Condvar)>);
+pub struct WriterGate(Arc<(Mutex<GateState>, Condvar)>);
+
+#[derive(Debug, Default)]
+struct GateState {
+    closed: bool,
+    /// Commands that may pass while closed.
+    passes: u64,
+}
 
 impl WriterGate {
     /// A gate that starts open.
     pub fn new() -> Self {
         Self::default()
     }
+    fn state(&self) -> std::sync::MutexGuard<'_, GateState> {
+        self.0.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
     pub fn close(&self) {
-        *self.0.0.lock().unwrap_or_else(|e| e.into_inner()) = true;
+        let mut s = self.state();
+        s.closed = true;
+        s.passes = 0;
     }
     pub fn open(&self) {
-        *self.0.0.lock().unwrap_or_else(|e| e.into_inner()) = false;
+        self.state().closed = false;
+        self.0.1.notify_all();
+    }
+    /// Lets `n` more commands pass a closed gate.
+    pub fn let_through(&self, n: u64) {
+        self.state().passes += n;
         self.0.1.notify_all();
     }
     fn wait(&self) {
-        let mut closed = self.0.0.lock().unwrap_or_else(|e| e.into_inner());
-        while *closed {
-            closed = self.0.1.wait(closed).unwrap_or_else(|e| e.into_inner());
+        let mut s = self.state();
+        loop {
+            if !s.closed {
+                return;
+            }
+            if s.passes > 0 {
+                s.passes -= 1;
+                return;
+            }
+            s = self.0.1.wait(s).unwrap_or_else(|e| e.into_inner());
         }
     }
 }
@@ -57,6 +105,13 @@ pub struct RecorderConfig {
     /// Drill: each trajectory file fails with an I/O error once it would pass this many bytes
     /// (a chunk write failing mid-trajectory, without filling a disk). `None` in real runs.
     pub fail_after_bytes: Option<u64>,
+    /// How long the writer may hold work without completing any before waits on it give up
+    /// ([`STALL_LIMIT`] in runs; shorter in tests).
+    pub stall_limit: Duration,
+    /// The output directory's lock (a duplicate of the run's), kept by the writer thread
+    /// until it ends, so that a writer outliving its run (a stalled disk) still keeps other
+    /// runs out of the directory.
+    pub dir_lock: Option<Arc<std::fs::File>>,
 }
 
 impl Default for RecorderConfig {
@@ -65,6 +120,8 @@ impl Default for RecorderConfig {
             queue_capacity: 4096,
             gate: None,
             fail_after_bytes: None,
+            stall_limit: STALL_LIMIT,
+            dir_lock: None,
         }
     }
 }
@@ -80,6 +137,94 @@ pub struct RecorderStats {
     pub written: AtomicU64,
     /// Messages discarded because their trajectory had already failed or none was open.
     pub discarded: AtomicU64,
+}
+
+/// The writer's progress, for the stall watch: commands queued or in hand, and commands done.
+#[derive(Debug, Default)]
+struct Progress {
+    /// Commands pushed (and a close asked for) that the writer has not completed.
+    pending: AtomicU64,
+    /// Commands the writer completed.
+    done: AtomicU64,
+}
+
+impl Progress {
+    fn complete_one(&self) {
+        self.done.fetch_add(1, Ordering::Release);
+        // Saturating: a recorder dropped without `close` ends its writer uncounted.
+        let _ = self
+            .pending
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1));
+    }
+}
+
+/// Watches waits on the writer: one that holds work without completing any for `limit` is
+/// stalled (see the module doc).
+#[derive(Debug)]
+struct StallWatch {
+    progress: Arc<Progress>,
+    limit: Duration,
+    dir: PathBuf,
+    /// The `done` count when a stall was declared: until it moves, later waits give up at once.
+    stalled_at: Mutex<Option<u64>>,
+}
+
+impl StallWatch {
+    fn stalled(&self, what: &str) -> RecordError {
+        RecordError::Stalled {
+            dir: self.dir.clone(),
+            limit_s: self.limit.as_secs_f64(),
+            what: what.to_owned(),
+        }
+    }
+
+    /// Whether a stall was declared and the writer has done nothing since.
+    fn still_stalled(&self) -> bool {
+        let at = *self.stalled_at.lock().unwrap_or_else(|e| e.into_inner());
+        at.is_some_and(|n| n == self.progress.done.load(Ordering::Acquire))
+    }
+
+    async fn watch<F: std::future::Future>(
+        &self,
+        what: &str,
+        fut: F,
+    ) -> Result<F::Output, RecordError> {
+        let mut fut = std::pin::pin!(fut);
+        if self.still_stalled() {
+            // No second grace for a disk already given up on: only an answer ready now counts.
+            return tokio::select! {
+                biased;
+                v = &mut fut => Ok(v),
+                () = std::future::ready(()) => Err(self.stalled(what)),
+            };
+        }
+        let tick = (self.limit / 20).clamp(Duration::from_millis(1), Duration::from_millis(250));
+        let mut seen = self.progress.done.load(Ordering::Acquire);
+        let mut since = Instant::now();
+        loop {
+            tokio::select! {
+                biased;
+                v = &mut fut => return Ok(v),
+                () = tokio::time::sleep(tick) => {}
+            }
+            let done = self.progress.done.load(Ordering::Acquire);
+            let idle = self.progress.pending.load(Ordering::Acquire) == 0;
+            if done != seen || idle {
+                // The writer moved, or has nothing to do (the wait is on something else).
+                seen = done;
+                since = Instant::now();
+            } else if since.elapsed() >= self.limit {
+                *self.stalled_at.lock().unwrap_or_else(|e| e.into_inner()) = Some(done);
+                tracing::error!(
+                    "the recording's writer has completed nothing for {:.1} s while {what}: \
+                     the disk under {} is stalled",
+                    self.limit.as_secs_f64(),
+                    self.dir.display()
+                );
+                return Err(self.stalled(what));
+            }
+        }
+    }
 }
 
 enum Cmd {
@@ -101,8 +246,11 @@ pub struct Recorder {
     tx: mpsc::Sender<Cmd>,
     capacity: usize,
     stats: Arc<RecorderStats>,
-    task: JoinHandle<Manifest>,
+    /// The final manifest, sent by the writer thread when it ends.
+    ended: oneshot::Receiver<Manifest>,
     dir: PathBuf,
+    watch: StallWatch,
+    gate: Option<WriterGate>,
 }
 
 impl Recorder {
@@ -119,23 +267,65 @@ impl Recorder {
         let capacity = cfg.queue_capacity.max(1);
         let (tx, rx) = mpsc::channel(capacity);
         let stats = Arc::new(RecorderStats::default());
+        let progress = Arc::new(Progress::default());
         let writer = WriterLoop {
             dir: dir.to_owned(),
             manifest,
             current: None,
             failed: None,
-            gate: cfg.gate,
+            gate: cfg.gate.clone(),
             fail_after_bytes: cfg.fail_after_bytes,
             stats: stats.clone(),
+            progress: progress.clone(),
         };
-        let task = tokio::task::spawn_blocking(move || writer.run(rx));
+        let (end_tx, ended) = oneshot::channel();
+        let dir_lock = cfg.dir_lock;
+        // A thread of its own, not tokio's blocking pool: a runtime waits for its blocking
+        // tasks when it shuts down, and this one may hang in a write for ever.
+        std::thread::Builder::new()
+            .name("rig-recorder".into())
+            .spawn(move || {
+                let manifest = writer.run(rx);
+                let _ = end_tx.send(manifest);
+                drop(dir_lock);
+            })
+            .map_err(|e| RecordError::WriterGone(format!("cannot start its thread: {e}")))?;
         Ok(Self {
             tx,
             capacity,
             stats,
-            task,
+            ended,
             dir: dir.to_owned(),
+            watch: StallWatch {
+                progress,
+                limit: cfg.stall_limit,
+                dir: dir.to_owned(),
+                stalled_at: Mutex::new(None),
+            },
+            gate: cfg.gate,
         })
+    }
+
+    /// The gate in front of the writer, if it was started with one (drills).
+    pub fn gate(&self) -> Option<&WriterGate> {
+        self.gate.as_ref()
+    }
+
+    /// `fut`, a wait that depends on the writer, unless the writer stalls first: it holds work
+    /// and completes none of it for the stall limit ([`STALL_LIMIT`]). `what` says what was
+    /// being waited for, in the error. Once a stall is declared, later waits give up at once
+    /// (unless the writer has moved since).
+    pub async fn watch<F: std::future::Future>(
+        &self,
+        what: &str,
+        fut: F,
+    ) -> Result<F::Output, RecordError> {
+        self.watch.watch(what, fut).await
+    }
+
+    /// Whether a stall was declared and the writer has completed nothing since.
+    pub fn is_stalled(&self) -> bool {
+        self.watch.still_stalled()
     }
 
     pub fn dir(&self) -> &Path {
@@ -152,6 +342,15 @@ impl Recorder {
     }
 
     async fn push(&self, cmd: Cmd) -> Result<(), RecordError> {
+        self.watch.progress.pending.fetch_add(1, Ordering::AcqRel);
+        let r = self.push_counted(cmd).await;
+        if r.is_err() {
+            self.watch.progress.pending.fetch_sub(1, Ordering::AcqRel);
+        }
+        r
+    }
+
+    async fn push_counted(&self, cmd: Cmd) -> Result<(), RecordError> {
         let gone = || RecordError::WriterGone("its queue is closed".into());
         match self.tx.try_reserve() {
             Ok(permit) => permit.send(cmd),
@@ -175,10 +374,13 @@ impl Recorder {
         Ok(())
     }
 
-    /// Open trajectory `id` (its partial file); the manifest marks it pending.
+    /// Open trajectory `id` (its partial file); the manifest marks it pending. Waits for room in
+    /// the queue, unless the writer stalls.
     pub async fn begin(&self, id: &str) -> Result<(), RecordError> {
         check_id(id)?;
-        self.push(Cmd::Begin(id.to_owned())).await
+        let what = format!("queueing the start of trajectory {id}");
+        self.watch(&what, self.push(Cmd::Begin(id.to_owned())))
+            .await?
     }
 
     /// Queue one message for the open trajectory; waits while the queue is full.
@@ -189,36 +391,54 @@ impl Recorder {
 
     /// Complete the open trajectory: everything queued is written, the file renamed to its final
     /// name and the manifest marks it complete. Returns its counts, or why it failed.
+    /// Fails with [`RecordError::Stalled`] when the writer stalls.
     pub async fn finish(&self, frames_dropped: u64) -> Result<Counts, RecordError> {
         let (reply, rx) = oneshot::channel();
-        self.push(Cmd::Finish {
-            frames_dropped,
-            reply,
-        })
-        .await?;
-        rx.await
-            .map_err(|_| RecordError::WriterGone("it stopped while finishing".into()))?
+        let done = async {
+            self.push(Cmd::Finish {
+                frames_dropped,
+                reply,
+            })
+            .await?;
+            rx.await
+                .map_err(|_| RecordError::WriterGone("it stopped while finishing".into()))?
+        };
+        self.watch("finishing the trajectory's file", done).await?
     }
 
     /// Abandon the open trajectory (safety stop, link loss): no file under its final name; the
-    /// manifest marks it failed with `reason`.
+    /// manifest marks it failed with `reason`. Fails with [`RecordError::Stalled`] when the
+    /// writer stalls (the manifest then still says pending, which `--resume` redoes too).
     pub async fn abort(&self, reason: &str) -> Result<(), RecordError> {
         let (reply, rx) = oneshot::channel();
-        self.push(Cmd::Abort {
-            reason: reason.to_owned(),
-            reply,
-        })
-        .await?;
-        rx.await
-            .map_err(|_| RecordError::WriterGone("it stopped while aborting".into()))
+        let done = async {
+            self.push(Cmd::Abort {
+                reason: reason.to_owned(),
+                reply,
+            })
+            .await?;
+            rx.await
+                .map_err(|_| RecordError::WriterGone("it stopped while aborting".into()))
+        };
+        self.watch("marking the failed trajectory in the manifest", done)
+            .await?
     }
 
     /// Stop the writer (an open trajectory is marked failed) and return the final manifest.
+    /// Fails with [`RecordError::Stalled`] when the writer stalls; it is then left to end by
+    /// itself (with the process, or when its disk comes back).
     pub async fn close(self) -> Result<Manifest, RecordError> {
-        drop(self.tx);
-        self.task
-            .await
-            .map_err(|e| RecordError::WriterGone(e.to_string()))
+        let Recorder {
+            tx, ended, watch, ..
+        } = self;
+        // The writer's last work (the queue, an open trajectory's abort, the manifest) counts
+        // as pending until it ends.
+        watch.progress.pending.fetch_add(1, Ordering::AcqRel);
+        drop(tx);
+        watch
+            .watch("closing the recording", ended)
+            .await?
+            .map_err(|_| RecordError::WriterGone("its thread ended without a manifest".into()))
     }
 }
 
@@ -231,33 +451,45 @@ struct WriterLoop {
     gate: Option<WriterGate>,
     fail_after_bytes: Option<u64>,
     stats: Arc<RecorderStats>,
+    progress: Arc<Progress>,
 }
 
 impl WriterLoop {
     fn run(mut self, mut rx: mpsc::Receiver<Cmd>) -> Manifest {
         while let Some(cmd) = rx.blocking_recv() {
+            self.command(cmd);
+            self.progress.complete_one();
+        }
+        if self.current.is_some() {
+            // Its file and the manifest are writes too, behind the gate like every other.
             if let Some(g) = &self.gate {
                 g.wait();
             }
-            match cmd {
-                Cmd::Begin(id) => self.begin(id),
-                Cmd::Rec(rec) => self.write(&rec),
-                Cmd::Finish {
-                    frames_dropped,
-                    reply,
-                } => {
-                    let _ = reply.send(self.finish(frames_dropped));
-                }
-                Cmd::Abort { reason, reply } => {
-                    self.abort(&reason);
-                    let _ = reply.send(());
-                }
-            }
-        }
-        if self.current.is_some() {
             self.abort("the recorder stopped before the trajectory was complete");
         }
+        // The close's own pending count.
+        self.progress.complete_one();
         self.manifest
+    }
+
+    fn command(&mut self, cmd: Cmd) {
+        if let Some(g) = &self.gate {
+            g.wait();
+        }
+        match cmd {
+            Cmd::Begin(id) => self.begin(id),
+            Cmd::Rec(rec) => self.write(&rec),
+            Cmd::Finish {
+                frames_dropped,
+                reply,
+            } => {
+                let _ = reply.send(self.finish(frames_dropped));
+            }
+            Cmd::Abort { reason, reply } => {
+                self.abort(&reason);
+                let _ = reply.send(());
+            }
+        }
     }
 
     fn save(&self) -> Result<(), RecordError> {

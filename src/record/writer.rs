@@ -78,6 +78,16 @@ pub enum RecordError {
     WriterGone(String),
     #[error("trajectory {id} failed: {reason}")]
     Failed { id: String, reason: String },
+    #[error(
+        "the recording's disk ({dir}) completed no write for {limit_s:.0} s while {what}: it is \
+         stalled or unreachable. Trajectories already complete are intact; once the disk is back, \
+         run the same command with --resume to record the rest"
+    )]
+    Stalled {
+        dir: PathBuf,
+        limit_s: f64,
+        what: String,
+    },
 }
 
 fn is_disk_full(e: &std::io::Error) -> bool {

@@ -12,9 +12,9 @@ use rig_core::pose::Pose;
 use super::options::RunOptions;
 use crate::camera::FrameSource;
 use crate::force::{self, FrontEndSettings, FtStream};
-use crate::record::{Manifest, Recorder, RecorderConfig};
+use crate::record::{Manifest, Recorder, RecorderConfig, WriterGate};
 use crate::robot::{Robot, RobotEndpoints, RobotOptions};
-use crate::simrig::{self, RunningSimRig};
+use crate::simrig::{self, RunningSimRig, SimFaultKind};
 
 /// The F/T stream and the camera of the rig.
 pub(super) struct Devices {
@@ -188,10 +188,15 @@ pub(super) async fn open_rig(
 /// one opened with another (a replaced calibration file, other counts or ranges) is refused,
 /// since its forces would not be comparable. Only the front end's address may differ (the
 /// simulated rig's ports change from run to run).
+///
+/// The writer keeps a duplicate of the output directory's `lock` for as long as it lives (a
+/// stalled disk can hold it past the run). A `disk-stall` drill (`--sim-fault`) gives it a
+/// gate to close.
 pub(super) fn start_recorder(
     opts: &RunOptions,
     mut manifest: Manifest,
     devices: &Devices,
+    lock: Option<&std::fs::File>,
 ) -> anyhow::Result<Arc<Recorder>> {
     if !manifest.calibration.is_null() {
         let differs = calibration_differences(&manifest.calibration, &devices.calibration);
@@ -211,7 +216,17 @@ pub(super) fn start_recorder(
         &opts.out,
         manifest,
         RecorderConfig {
-            gate: opts.recorder_gate.clone(),
+            gate: opts.recorder_gate.clone().or_else(|| {
+                opts.sim_faults
+                    .iter()
+                    .any(|f| f.kind == SimFaultKind::DiskStall)
+                    .then(WriterGate::new)
+            }),
+            dir_lock: lock
+                .map(std::fs::File::try_clone)
+                .transpose()
+                .with_context(|| format!("cannot share the lock on {}", opts.out.display()))?
+                .map(Arc::new),
             ..RecorderConfig::default()
         },
     )

@@ -50,6 +50,13 @@
 //! pending, complete or failed (with the reason). A failed trajectory's partial file is
 //! removed. `--resume` skips complete trajectories and redoes the rest.
 //!
+//! A disk that stops answering does not hang the run: every wait on the recorder (a
+//! trajectory's start and finish, the aborts after a failure, the end-of-run close) gives up
+//! once its writer has held work for [`crate::record::STALL_LIMIT`] without completing any.
+//! The arm is stopped and retracted first, as after any failure; the run then stops with
+//! [`RunSummary::recording_stalled`] saying so, leaving the manifest as last saved (the
+//! trajectory under way pending), for `--resume` once the disk is back.
+//!
 //! The disk space is budgeted ([`budget`]): a run whose estimate (frames × the sensor's
 //! measured bytes per frame, plus the other channels) the output's file system cannot hold is
 //! refused before anything connects, and a trajectory that no longer fits is not started: the
@@ -88,6 +95,7 @@ use rig_core::config::RigConfig;
 use rig_core::indenter::Indenter;
 
 use crate::plan::{Plan, Trajectory};
+use crate::record::RecordError;
 use devices::Rig;
 use pipeline::Pipeline;
 use trajectory::Ctx;
@@ -150,7 +158,7 @@ pub async fn run(
         devices,
         sim,
     } = devices::open_rig(config, indenter, opts, home).await?;
-    let rec = devices::start_recorder(opts, output.manifest, &devices)?;
+    let rec = devices::start_recorder(opts, output.manifest, &devices, _out_lock.as_ref())?;
     let mut robot = devices::connect_robot(config, endpoints, speed, &clock).await?;
     let pipeline = Pipeline::start(
         config,
@@ -254,17 +262,36 @@ pub async fn run(
     }
     summary.retracts = retracts.lock().unwrap_or_else(|e| e.into_inner()).clone();
 
-    // Orderly shutdown: streams, collector, recorder (every queued record written), rig.
-    pipeline.shutdown().await;
+    // Orderly shutdown: streams, collector, recorder (every queued record written), rig. A
+    // stalled disk ends it early: the writer is left hanging (it keeps the directory's lock),
+    // what it saved stays as `--resume` finds it, and nothing else reads the disk.
+    pipeline.shutdown(&rec).await;
     let rec = Arc::into_inner(rec).context("the recorder is still in use at the end of the run")?;
-    rec.close()
-        .await
-        .with_context(|| format!("finishing the recording in {}", opts.out.display()))?;
+    match rec.close().await {
+        Ok(_) => {}
+        Err(e @ RecordError::Stalled { .. }) => {
+            let why = e.to_string();
+            if summary.failure.is_none() {
+                let id = todo
+                    .get(attempted.saturating_sub(1))
+                    .map_or_else(String::new, |t| t.id.clone());
+                summary.failure = Some((id, why.clone()));
+            }
+            summary.stopped.get_or_insert_with(|| why.clone());
+            summary.recording_stalled = Some(why);
+        }
+        Err(e) => {
+            return Err(e)
+                .with_context(|| format!("finishing the recording in {}", opts.out.display()));
+        }
+    }
     drop(robot);
     if let Some(s) = sim {
         summary.sim_tapes = s.shutdown().await;
     }
-    summary.disk = budget::DiskUse::of(&opts.out, &disk);
+    if summary.recording_stalled.is_none() {
+        summary.disk = budget::DiskUse::of(&opts.out, &disk);
+    }
     summary.wall_time_s = wall0.elapsed().as_secs_f64();
     // The arm is left above the gel: every trajectory ends its Up stage at approach height.
     Ok(summary)

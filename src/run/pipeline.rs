@@ -88,6 +88,8 @@ impl Pipeline {
             wrench_clock: no_jumps.clone(),
             ..PairerConfig::default()
         };
+        // The disk-stall drill's hold on the writer (the fault injector closes it).
+        let disk_gate = rec.gate().cloned();
         let (collector, cmds) = mpsc::unbounded_channel();
         let collector_task = collector::spawn(
             rec,
@@ -118,11 +120,19 @@ impl Pipeline {
         let injector = match sim {
             Some(s) if !opts.sim_faults.is_empty() => {
                 let freeze = streams.freeze_handle();
+                let gate = disk_gate.clone();
                 Some(s.inject(
                     opts.sim_faults.clone(),
                     clock.clone(),
                     stage_rx,
-                    Arc::new(move || freeze.freeze(true)),
+                    simrig::RigHooks {
+                        freeze_supervisor: Arc::new(move || freeze.freeze(true)),
+                        stall_disk: Arc::new(move || {
+                            if let Some(g) = &gate {
+                                g.close();
+                            }
+                        }),
+                    },
                 ))
             }
             _ => None,
@@ -150,16 +160,36 @@ impl Pipeline {
     }
 
     /// Stops the injector and governor, the streams, then the collector once it has written
-    /// everything queued.
-    pub async fn shutdown(self) {
+    /// everything queued. With the recorder's writer stalled ([`Recorder::watch`]) the collector
+    /// (waiting for room in its queue) is cancelled instead: the streams' frame encoder, which
+    /// may wait on the collector in turn, can then end too.
+    pub async fn shutdown(self, rec: &Recorder) {
         if let Some(i) = self.injector {
             i.abort();
         }
         if let Some(g) = self.governor {
             g.abort();
         }
-        self.streams.shutdown().await;
+        let mut collector_task = self.collector_task;
+        let mut streams = std::pin::pin!(self.streams.shutdown());
+        if rec
+            .watch("stopping the streams", &mut streams)
+            .await
+            .is_err()
+        {
+            collector_task.abort();
+            let _ = (&mut collector_task).await;
+            streams.await;
+            return;
+        }
         drop(self.collector);
-        let _ = self.collector_task.await;
+        if rec
+            .watch("writing the last queued records", &mut collector_task)
+            .await
+            .is_err()
+        {
+            collector_task.abort();
+            let _ = collector_task.await;
+        }
     }
 }

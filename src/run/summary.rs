@@ -79,8 +79,12 @@ pub struct RunSummary {
     pub safety_stops: Vec<super::safety::SafetyStop>,
     /// Every retract along the surface normal: label, from, to.
     pub retracts: Vec<Retract>,
-    /// What the output directory holds at the end of the run, against the disk budget.
+    /// What the output directory holds at the end of the run, against the disk budget (not
+    /// measured when the disk stalled).
     pub disk: Option<super::budget::DiskUse>,
+    /// The recording's disk stopped answering (see [`crate::record::STALL_LIMIT`]): why. The
+    /// run stopped; the writer was left hanging, and the directory is as it last saved it.
+    pub recording_stalled: Option<String>,
 }
 
 /// A retract along the surface normal to the approach height.
@@ -239,8 +243,18 @@ impl RunSummary {
         if let Some(d) = &self.disk {
             s.push_str(&d.line());
         }
+        for r in &self.retracts {
+            s.push_str(&format!(
+                "retracted: {} along the surface normal, {:.3} mm up to the approach height\n",
+                r.label,
+                rig_core::pose::translation_distance(&r.from, &r.to) * 1e3
+            ));
+        }
         for (id, why) in &self.failed {
             s.push_str(&format!("failed: trajectory {id}: {why}\n"));
+        }
+        if let Some(why) = &self.recording_stalled {
+            s.push_str(&format!("recording stalled: {why}\n"));
         }
         if let Some(why) = &self.stopped {
             s.push_str(&format!("the run stopped early: {why}\n"));

@@ -238,9 +238,11 @@ async fn run_trajectory(
         .map_or_else(|| ctx.clock.now_ns(), |s| s.state.t_host_ns);
     let (reply, rx) = oneshot::channel();
     let _ = ctx.collector.send(CollectCmd::End { t_end_ns, reply });
-    // The last frames and samples are still coming: a stream that stalls now fails it too.
+    // The last frames and samples are still coming: a stream that stalls now fails it too. The
+    // collector may be waiting on a stalled writer (its queue full): that wait is watched.
     let stats = tokio::select! {
-        r = rx => r
+        r = ctx.rec.watch("writing the trajectory's last records", rx) => r
+            .map_err(|e| TrajectoryError::Record(e.to_string()))?
             .map_err(|_| TrajectoryError::Record("the collector stopped".into()))?
             .map_err(TrajectoryError::Record)?,
         t = trips.wait_for(|t| t.is_some()) => {
@@ -267,12 +269,17 @@ struct TipPath {
     samples: usize,
 }
 
-/// Stop the collector's writing of the open trajectory.
-async fn abort_collector(collector: &mpsc::UnboundedSender<CollectCmd>) {
+/// Stop the collector's writing of the open trajectory. It may be waiting on a stalled writer
+/// (its queue full): that wait is watched ([`Recorder::watch`]).
+async fn abort_collector(
+    collector: &mpsc::UnboundedSender<CollectCmd>,
+    rec: &Recorder,
+) -> Result<(), crate::record::RecordError> {
     let (reply, rx) = oneshot::channel();
     if collector.send(CollectCmd::Abort { reply }).is_ok() {
-        let _ = rx.await;
+        let _ = rec.watch("stopping the collector's writing", rx).await?;
     }
+    Ok(())
 }
 
 /// Move straight up (surface normal) from wherever the arm is to the approach height, keeping
@@ -494,14 +501,26 @@ pub(super) async fn fail(
     let reason = format!("{}: {}", t.id, e.reason());
     tracing::error!("trajectory {reason}");
     // Off the gel before any bookkeeping: the aborts below wait on the recording, which a
-    // stalled disk can hold up indefinitely.
+    // stalled disk can hold up indefinitely. Each of those waits gives up once the writer has
+    // held work without completing any for its stall limit (`record::STALL_LIMIT`), and the
+    // run then stops: nothing more can be recorded.
     let stop = after_failure(robot, ctx, t, e).await;
-    abort_collector(ctx.collector).await;
     bar.suspend(|| eprintln!("trajectory {reason}"));
-    if let Err(ae) = ctx.rec.abort(&e.reason()).await {
-        tracing::error!("trajectory {}: could not mark it failed: {ae}", t.id);
+    let aborted = match abort_collector(ctx.collector, ctx.rec).await {
+        Ok(()) => ctx.rec.abort(&e.reason()).await,
+        Err(stalled) => Err(stalled),
+    };
+    match aborted {
+        Ok(()) => stop,
+        Err(ae @ crate::record::RecordError::Stalled { .. }) => {
+            tracing::error!("trajectory {}: could not mark it failed: {ae}", t.id);
+            Some(format!("{}: {ae}", t.id))
+        }
+        Err(ae) => {
+            tracing::error!("trajectory {}: could not mark it failed: {ae}", t.id);
+            stop
+        }
     }
-    stop
 }
 
 /// After a failed trajectory (the arm already stopped after a trip): recover and retract the

@@ -39,6 +39,10 @@ pub enum SimFaultKind {
     /// The rig's own safety supervisor hangs (no checks, no heartbeat): the controller's RTDE
     /// watchdog must stop the arm by itself.
     SupervisorFreeze,
+    /// The recording's disk stops answering: the recorder's writer is held for good (it never
+    /// returns from its next write). The run must still stop and retract the arm on a trip, and
+    /// end with a clear error once its bookkeeping has waited the recorder's stall limit.
+    DiskStall,
 }
 
 /// The longest delay after its stage's start a fault may be scheduled for, ms: an hour of
@@ -50,7 +54,7 @@ impl std::str::FromStr for SimFault {
     /// `KIND@TRAJECTORY/STAGE[+MS]`, e.g. `protective-stop@p0-d0.4-a030/shear+200`.
     fn from_str(s: &str) -> Result<Self, String> {
         let usage = "expected KIND@TRAJECTORY/STAGE[+MS], e.g. protective-stop@p0-d0.4-a030/shear+200 \
-                     (KIND: protective-stop, rtde-drop, ft-unplug, camera-stall, supervisor-freeze)";
+                     (KIND: protective-stop, rtde-drop, ft-unplug, camera-stall, supervisor-freeze, disk-stall)";
         let (kind, rest) = s.split_once('@').ok_or_else(|| format!("{s:?}: {usage}"))?;
         let kind = match kind {
             "protective-stop" => SimFaultKind::ProtectiveStop,
@@ -58,6 +62,7 @@ impl std::str::FromStr for SimFault {
             "ft-unplug" => SimFaultKind::FtUnplug,
             "camera-stall" => SimFaultKind::CameraStall,
             "supervisor-freeze" => SimFaultKind::SupervisorFreeze,
+            "disk-stall" => SimFaultKind::DiskStall,
             other => return Err(format!("unknown fault kind {other:?}: {usage}")),
         };
         let (traj, stage_ms) = rest
@@ -98,13 +103,21 @@ impl std::str::FromStr for SimFault {
     }
 }
 
+/// The rig's own parts that faults act on, besides the simulated devices.
+#[derive(Clone)]
+pub struct RigHooks {
+    /// Freezes the rig's safety supervisor.
+    pub freeze_supervisor: Arc<dyn Fn() + Send + Sync>,
+    /// Holds the recorder's writer for good (a disk that never comes back).
+    pub stall_disk: Arc<dyn Fn() + Send + Sync>,
+}
+
 /// Handles of the simulated rig that faults are injected through.
 pub(super) struct FaultTargets {
     pub ur5e: Arc<Ur5e>,
     pub ft: Arc<Faults>,
     pub camera: Option<CameraFaults>,
-    /// Freezes the rig's safety supervisor.
-    pub freeze_supervisor: Arc<dyn Fn() + Send + Sync>,
+    pub rig: RigHooks,
 }
 
 /// Injects `faults` when their stage starts (plus their delay).
@@ -127,11 +140,11 @@ pub(super) async fn inject_faults(
             .partition(|f| f.trajectory == id && f.stage == stage);
         pending = later;
         for f in now {
-            let (ur, ft, cam, freeze, clock) = (
+            let (ur, ft, cam, rig, clock) = (
                 targets.ur5e.clone(),
                 targets.ft.clone(),
                 targets.camera.clone(),
-                targets.freeze_supervisor.clone(),
+                targets.rig.clone(),
                 clock.clone(),
             );
             tokio::spawn(async move {
@@ -153,7 +166,8 @@ pub(super) async fn inject_faults(
                             c.set_stalled(true);
                         }
                     }
-                    SimFaultKind::SupervisorFreeze => freeze(),
+                    SimFaultKind::SupervisorFreeze => (rig.freeze_supervisor)(),
+                    SimFaultKind::DiskStall => (rig.stall_disk)(),
                 }
             });
         }

@@ -44,7 +44,7 @@ use crate::plan::StageName;
 use crate::robot::RobotEndpoints;
 
 pub use camera::{SimFrameSource, frame_as_sent};
-pub use faults::{SimFault, SimFaultKind};
+pub use faults::{RigHooks, SimFault, SimFaultKind};
 pub use ft::open_ft;
 pub use governor::govern;
 pub use hardware_mocks::rig_sim::{
@@ -105,13 +105,13 @@ impl RunningSimRig {
         faults: Vec<SimFault>,
         clock: Clock,
         stages: watch::Receiver<Option<(String, StageName)>>,
-        freeze_supervisor: std::sync::Arc<dyn Fn() + Send + Sync>,
+        rig: RigHooks,
     ) -> JoinHandle<()> {
         let targets = faults::FaultTargets {
             ur5e: self.rig.ur5e_arc(),
             ft: self.rig.ft().faults().clone(),
             camera: self.camera_faults.clone(),
-            freeze_supervisor,
+            rig,
         };
         tokio::spawn(faults::inject_faults(faults, targets, clock, stages))
     }

@@ -7,7 +7,8 @@
 //! trajectory; with `safety.on_failure = "stop"` the run stops there (the later trajectories stay
 //! pending), with `"continue"` the rig recovers (a protective stop only after UR's 5 s unlock
 //! delay), retracts and goes on. A lost or stalled stream (F/T port closed, camera stalled) or
-//! a recording error (disk full) always stops the run.
+//! a recording error (disk full) always stops the run. A disk that never answers again stops
+//! the run once the bookkeeping after the stop has waited the recorder's stall limit (10 s).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -266,4 +267,72 @@ fn a_full_disk_fails_the_trajectory_and_keeps_the_completed_ones() {
     assert!(log.contains("No space left on device"), "{log}");
     assert!(log.contains("the recording failed"), "{log}");
     assert_state(&copy, T2, "No space left on device", &[T1], &[T3]);
+}
+
+/// The longest a stalled-disk drill may take before the test calls it hung: far beyond the
+/// trajectories and the recorder's 10 s stall limit (a guard against a hang, not a speed test).
+const HANG_GUARD: std::time::Duration = std::time::Duration::from_secs(300);
+
+#[test]
+fn a_disk_that_never_comes_back_ends_the_run_with_the_arm_retracted_and_resume_completes_it() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config(tmp.path(), &[]);
+    let dir = tmp.path().join("run");
+    // The disk stops answering early in T2's press, with the recording under way; later in
+    // the press the F/T's pty closes, which trips the supervisor: the arm is stopped and
+    // retracted, and the bookkeeping after the stop (the aborts, the manifest, the close)
+    // then waits on a writer that never returns.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(["run", "--indenter", "cone", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&dir)
+        .args(["--limit", "2", "--sim-ft", "serial"])
+        .arg(fault("disk-stall", T2, "down+100"))
+        .arg(fault("ft-unplug", T2, "shear+200"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > HANG_GUARD {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!(
+                "the run hung on its stalled disk for {HANG_GUARD:?}:\n{}",
+                text(&out)
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    let out = child.wait_with_output().unwrap();
+    let all = text(&out);
+    assert!(!out.status.success(), "{all}");
+    assert!(all.contains("F/T"), "{all}");
+    assert!(
+        all.contains("completed no write for 10 s") && all.contains("stalled or unreachable"),
+        "{all}"
+    );
+    assert!(all.contains("--resume"), "{all}");
+    // The arm was retracted after the stop, before the bookkeeping gave up.
+    assert!(
+        all.contains(&format!("retracted: {T2}/retract along the surface normal")),
+        "{all}"
+    );
+    // The dataset is as the disk last took it: T1 complete, T2 still pending (its abort
+    // never reached the manifest) with its partial file, which --resume removes.
+    let m = Manifest::load(&dir).unwrap();
+    assert_eq!(m.entry(T1).unwrap().status, Status::Complete);
+    assert_eq!(m.entry(T2).unwrap().status, Status::Pending);
+    assert!(!dir.join(final_name(T2)).exists());
+    assert!(dir.join(format!(".{T2}.mcap.partial")).exists());
+
+    // "The disk comes back": the same command with --resume, without the faults.
+    resume_completes(&cfg, &dir, 2, &["--sim-ft", "serial"]);
+    let m = Manifest::load(&dir).unwrap();
+    for id in [T1, T2] {
+        assert_eq!(m.entry(id).unwrap().status, Status::Complete, "{id}");
+    }
 }

@@ -7,8 +7,8 @@ use std::sync::atomic::Ordering;
 
 use rig::record::synthetic::{SyntheticSpec, png_frame, record_one};
 use rig::record::{
-    Manifest, Record, Recorder, RecorderConfig, SensorInfo, Status, WriterGate, final_name,
-    partial_name, read_file, resume,
+    Manifest, Record, RecordError, Recorder, RecorderConfig, SensorInfo, Status, WriterGate,
+    final_name, partial_name, read_file, resume,
 };
 use rig_core::wrench::Wrench;
 
@@ -250,4 +250,165 @@ async fn bad_ids_are_refused_before_touching_the_disk() {
     }
     rec.close().await.unwrap();
     assert_eq!(names(dir.path()), vec!["manifest.json".to_owned()]);
+}
+
+/// Whether `dir`'s advisory lock (the one `rig run` takes) is free now.
+fn lock_free(dir: &Path) -> bool {
+    let f = std::fs::File::open(dir).unwrap();
+    f.try_lock().is_ok()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_writer_that_never_returns_is_given_up_on_after_the_stall_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let ids = ids(2);
+    let gate = WriterGate::new();
+    let lock = std::fs::File::open(dir.path()).unwrap();
+    lock.try_lock().unwrap();
+    let rec = Recorder::start(
+        dir.path(),
+        manifest(&ids),
+        RecorderConfig {
+            gate: Some(gate.clone()),
+            stall_limit: std::time::Duration::from_millis(300),
+            dir_lock: Some(std::sync::Arc::new(lock.try_clone().unwrap())),
+            ..RecorderConfig::default()
+        },
+    )
+    .unwrap();
+    let spec = SyntheticSpec::default();
+    record_one(&rec, &ids[0], &spec).await.unwrap();
+    rec.begin(&ids[1]).await.unwrap();
+    rec.send(Record::Wrench {
+        t_ns: 1,
+        seq: Some(1),
+        wrench: Wrench::from_array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
+    })
+    .await
+    .unwrap();
+    // Everything queued so far is written (the second trajectory's file is open)...
+    let mut waited = 0;
+    while rec.stats().written.load(Ordering::Relaxed) < rec.stats().queued.load(Ordering::Relaxed) {
+        waited += 1;
+        assert!(waited < 3000, "the writer never caught up");
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    // ...when the disk stops answering: the writer never returns from its next command.
+    gate.close();
+    let e = rec.abort("force limit exceeded").await.unwrap_err();
+    assert!(
+        matches!(e, RecordError::Stalled { ref what, .. } if what.contains("manifest")),
+        "{e:?}"
+    );
+    let msg = e.to_string();
+    assert!(
+        msg.contains("stalled or unreachable") && msg.contains("--resume"),
+        "{msg}"
+    );
+    assert!(rec.is_stalled());
+    // Given up on: the next waits do not wait again.
+    assert!(matches!(
+        rec.finish(0).await.unwrap_err(),
+        RecordError::Stalled { .. }
+    ));
+    assert!(matches!(
+        rec.close().await.unwrap_err(),
+        RecordError::Stalled { .. }
+    ));
+    // The run is over, but the hanging writer keeps the directory's lock (a duplicate of the
+    // run's), so no other run writes there while it might still.
+    drop(lock);
+    assert!(!lock_free(dir.path()));
+    // On disk: the first trajectory complete, the second as the writer last saved it.
+    let on_disk = Manifest::load(dir.path()).unwrap();
+    assert_eq!(on_disk.entry(&ids[0]).unwrap().status, Status::Complete);
+    assert_eq!(on_disk.entry(&ids[1]).unwrap().status, Status::Pending);
+    assert!(dir.path().join(partial_name(&ids[1])).exists());
+
+    // The disk comes back: the writer completes what it held (the abort, the close) and ends,
+    // which frees the lock; resume then redoes the second trajectory only.
+    gate.open();
+    let mut waited = 0;
+    while !lock_free(dir.path()) {
+        waited += 1;
+        assert!(
+            waited < 3000,
+            "the writer never ended after the gate opened"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    let on_disk = Manifest::load(dir.path()).unwrap();
+    let second = on_disk.entry(&ids[1]).unwrap();
+    assert_eq!(second.status, Status::Failed, "{second:?}");
+    assert_eq!(second.reason.as_deref(), Some("force limit exceeded"));
+    let plan = resume(dir.path(), &ids).unwrap();
+    assert_eq!(plan.complete, vec![ids[0].clone()]);
+    assert_eq!(plan.redo.len(), 1);
+    let rec = Recorder::start(
+        dir.path(),
+        plan.manifest.unwrap(),
+        RecorderConfig::default(),
+    )
+    .unwrap();
+    record_one(&rec, &ids[1], &spec).await.unwrap();
+    rec.close().await.unwrap();
+    assert_eq!(resume(dir.path(), &ids).unwrap().complete, ids);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slow_disk_that_still_writes_is_never_called_stalled() {
+    let dir = tempfile::tempdir().unwrap();
+    let ids = ids(1);
+    let gate = WriterGate::new();
+    gate.close();
+    let limit = std::time::Duration::from_secs(1);
+    let rec = Recorder::start(
+        dir.path(),
+        manifest(&ids),
+        RecorderConfig {
+            gate: Some(gate.clone()),
+            stall_limit: limit,
+            ..RecorderConfig::default()
+        },
+    )
+    .unwrap();
+    // The disk takes one command at a time, each a quarter of the stall limit after the last:
+    // the trajectory takes far longer than the limit, but the writer keeps completing work.
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let pacer = {
+        let (gate, done) = (gate.clone(), done.clone());
+        tokio::spawn(async move {
+            let mut passes = 0u32;
+            while !done.load(Ordering::Relaxed) {
+                tokio::time::sleep(limit / 4).await;
+                gate.let_through(1);
+                passes += 1;
+            }
+            gate.open();
+            passes
+        })
+    };
+    let id = ids[0].clone();
+    rec.begin(&id).await.unwrap();
+    for k in 0..8u64 {
+        rec.send(Record::Wrench {
+            t_ns: k * 1_000_000,
+            seq: Some(k as i64),
+            wrench: Wrench::from_array([k as f64, 0.0, 0.0, 0.0, 0.0, 0.0]),
+        })
+        .await
+        .unwrap();
+    }
+    let counts = rec.finish(0).await.unwrap();
+    done.store(true, Ordering::Relaxed);
+    let passes = pacer.await.unwrap();
+    assert_eq!(counts.wrench, 8);
+    // Every command was queued at once (the begin, 8 messages, the finish): the finish waited
+    // for ten passes, two and a half stall limits.
+    assert!(
+        passes >= 10,
+        "{passes} passes: the drill did not slow the disk"
+    );
+    assert!(!rec.is_stalled());
+    rec.close().await.unwrap();
 }
