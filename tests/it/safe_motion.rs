@@ -83,6 +83,20 @@ fn a_run_killed_at_depth_resumes_by_retracting_along_the_normal_first() {
     });
     // Dropping the runtime kills every task of the run, the simulated rig's included.
     drop(rt);
+    // A killed process's lock on the output directory goes with it. In-process, the recorder's
+    // writer thread (a std thread, outside the runtime) holds it until it sees its commands
+    // end: wait for that, as a second `rig run` after a real kill would find it free.
+    let dir = std::fs::File::open(&out).unwrap();
+    let t0 = std::time::Instant::now();
+    while dir.try_lock().is_err() {
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(30),
+            "the killed run's writer still holds the output directory's lock after 30 s"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    dir.unlock().unwrap();
+    drop(dir);
     let killed_at = last_pose.lock().unwrap().expect("no pose was recorded");
     let [t0, t1] = [&plan.trajectories[0].id, &plan.trajectories[1].id];
     assert_eq!(status(&out, t0), Some(Status::Complete));
