@@ -497,6 +497,13 @@ impl System {
             return done(k, Some(e));
         }
         let acquired = task.acquired(dev, now);
+        // An injected host stall: this read returns only once the stall is over.
+        if acquired < stall_until {
+            return Step::Wait {
+                clock_ns: 1_000_000,
+                rate: dev.clock_rate(now),
+            };
+        }
         if pos < acquired.saturating_sub(task.buffer()) {
             let e = Fail::new(
                 errors::SAMPLES_NO_LONGER_AVAILABLE,
@@ -515,15 +522,9 @@ impl System {
             }
             return done(0, Some(e));
         }
-        if acquired >= pos + n && acquired >= stall_until {
+        if acquired >= pos + n {
             let k = generate(task, dev, pos, n, n, overload, fill_mode, out);
             return done(k, None);
-        }
-        if acquired < stall_until {
-            return Step::Wait {
-                clock_ns: 1_000_000,
-                rate: dev.clock_rate(now),
-            };
         }
         if let Some(h) = dev.injections.fifo_at.filter(|h| ticked > *h) {
             let end = h.clamp(pos, pos + n);
