@@ -22,9 +22,9 @@
 use std::ffi::{CStr, c_char, c_void};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
+use hardware_mocks::nano17::nidaqmx::System;
 use hardware_mocks::nano17::nidaqmx::errors::{self, Fail};
 use hardware_mocks::nano17::nidaqmx::hook::{LOG_WIDTH, StandinHook, StandinStats};
-use hardware_mocks::nano17::nidaqmx::System;
 
 /// NI's `TaskHandle`.
 pub type TaskHandle = *mut c_void;

@@ -222,8 +222,7 @@ pub async fn start(
             .await?
         }
         SimFtFrontEnd::NiDaqmx => {
-            let source: hardware_mocks::truth::SharedWrenchSource =
-                Arc::new(rig.physics().clone());
+            let source: hardware_mocks::truth::SharedWrenchSource = Arc::new(rig.physics().clone());
             let faults = rig.ft().faults().clone();
             nidaqmx::open(fs, &mut settings, source, faults, clock.clone()).await?
         }

@@ -32,13 +32,15 @@ use crate::common;
 const RATE_HZ: f64 = 1000.0;
 
 fn standin_path() -> PathBuf {
-    library::beside_executable("libnidaqmx_standin.so").expect(
-        "the stand-in NI library is built with the tests (dev-dependency nidaqmx-standin)",
-    )
+    library::beside_executable("libnidaqmx_standin.so")
+        .expect("the stand-in NI library is built with the tests (dev-dependency nidaqmx-standin)")
 }
 
 fn cal_path() -> &'static str {
-    concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/nano17_useraxis.cal")
+    concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/nano17_useraxis.cal"
+    )
 }
 
 /// The stand-in as loaded by the rig's own loader, and its extra symbols.
@@ -115,7 +117,14 @@ fn load(t_ns: u64, from_ns: u64) -> [f64; 6] {
     }
     let s = (t_ns - from_ns) as f64 * 1e-9;
     let w = |a: f64, f: f64| a * (2.0 * std::f64::consts::PI * f * s).sin();
-    [w(2.0, 0.3), w(-1.5, 0.2), -4.0 + w(3.0, 0.1), w(20.0, 0.25), w(-15.0, 0.15), w(5.0, 0.4)]
+    [
+        w(2.0, 0.3),
+        w(-1.5, 0.2),
+        -4.0 + w(3.0, 0.1),
+        w(20.0, 0.25),
+        w(-15.0, 0.15),
+        w(5.0, 0.4),
+    ]
 }
 
 unsafe extern "C" fn scene_now(ctx: *mut c_void) -> u64 {
@@ -225,7 +234,11 @@ async fn ft_nidaqmx_streams_a_minute_at_1khz_with_no_loss_and_the_calibration_ap
     let mut stream = nidaqmx::open_with(ni.api, spec(DEV, &cal), settings(&cal), clock.clone())
         .await
         .unwrap();
-    assert!(stream.description.contains("NiA/ai0"), "{}", stream.description);
+    assert!(
+        stream.description.contains("NiA/ai0"),
+        "{}",
+        stream.description
+    );
     let tare = stream.tare(500).await.unwrap();
     // The bias is in gauge volts: the simulated sensor's offsets (plus noise), compensated.
     assert!((tare.raw.mean[2] - 0.2044).abs() < 0.01, "{tare:?}");
@@ -240,7 +253,11 @@ async fn ft_nidaqmx_streams_a_minute_at_1khz_with_no_loss_and_the_calibration_ap
     assert_eq!(stats.lost, 0, "{stats}");
     assert!(samples.len() > 60_000);
     for w in samples.windows(2) {
-        assert_eq!(w[1].device_seq, w[0].device_seq + 1, "a gap in the card's indices");
+        assert_eq!(
+            w[1].device_seq,
+            w[0].device_seq + 1,
+            "a gap in the card's indices"
+        );
     }
     let card = ni.stats(DEV);
     assert_eq!(card.skipped, 0);
@@ -250,7 +267,11 @@ async fn ft_nidaqmx_streams_a_minute_at_1khz_with_no_loss_and_the_calibration_ap
     for s in &samples {
         assert!(s.flags.is_clean(), "{s:?}");
         let v = &log[s.device_seq as usize];
-        assert_same(&s.wrench.to_array(), &expected(&cal, v, &tare.raw.mean), "sample");
+        assert_same(
+            &s.wrench.to_array(),
+            &expected(&cal, v, &tare.raw.mean),
+            "sample",
+        );
         // Independently of the calibration code: the true load at the sample's instant on the
         // card's clock, within the simulated sensor's noise (σ 1/160 N; the tared offset).
         let t_k = card.first_sample_ns + (s.device_seq as f64 * 1e9 / RATE_HZ).round() as u64;
@@ -301,8 +322,16 @@ async fn ft_nidaqmx_counts_an_injected_overrun_exactly_and_keeps_the_indices() {
     let log = ni.log_read(DEV, 0, 12_001);
     for s in samples.iter().filter(|s| s.device_seq > before - 5) {
         let v = &log[s.device_seq as usize];
-        assert!(v.iter().all(|x| x.is_finite()), "{} was never read", s.device_seq);
-        assert_same(&s.wrench.to_array(), &expected(&cal, v, &[0.0; 6]), "after the gap");
+        assert!(
+            v.iter().all(|x| x.is_finite()),
+            "{} was never read",
+            s.device_seq
+        );
+        assert_same(
+            &s.wrench.to_array(),
+            &expected(&cal, v, &[0.0; 6]),
+            "after the gap",
+        );
     }
 }
 
@@ -462,7 +491,11 @@ async fn ft_nidaqmx_fifo_overflow_restarts_the_card_and_counts_the_stopped_stret
     assert_eq!(missing, stats.lost, "{gaps:?} {stats}");
     // The count continues on the clock: the restarted card's sample 0 gets the index of its
     // instant on the first run's sample clock, within the read latency (a few blocks).
-    let resumed = samples.iter().find(|s| s.device_seq >= 2000).unwrap().device_seq;
+    let resumed = samples
+        .iter()
+        .find(|s| s.device_seq >= 2000)
+        .unwrap()
+        .device_seq;
     let on_clock = (card.first_sample_ns - first_run_ns) as f64 * RATE_HZ * 1e-9;
     assert!(
         (resumed as f64 - on_clock).abs() < 30.0,
@@ -504,7 +537,11 @@ fn rig_ft(args: &[&str], cfg: &Path, env: Option<&Path>) -> std::process::Output
 fn ft_nidaqmx_cli_streams_and_checks_against_the_standin() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = ni_config(tmp.path(), "");
-    let out = rig_ft(&["stream", "--seconds", "1.5", "--json"], &cfg, Some(&standin_path()));
+    let out = rig_ft(
+        &["stream", "--seconds", "1.5", "--json"],
+        &cfg,
+        Some(&standin_path()),
+    );
     let text = common::output_text(&out);
     assert!(out.status.success(), "{text}");
     let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
@@ -512,7 +549,10 @@ fn ft_nidaqmx_cli_streams_and_checks_against_the_standin() {
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     assert!(lines[0].get("tare").is_some(), "{text}");
-    let windows: Vec<_> = lines.iter().filter(|l| l.get("rate_hz").is_some()).collect();
+    let windows: Vec<_> = lines
+        .iter()
+        .filter(|l| l.get("rate_hz").is_some())
+        .collect();
     assert!(!windows.is_empty(), "{text}");
     for w in windows {
         assert_eq!(w["stats"]["lost"], 0, "{text}");
@@ -537,7 +577,10 @@ fn ft_nidaqmx_cli_wrong_channel_gives_ni_s_message_without_a_panic() {
     assert!(!out.status.success(), "{text}");
     assert!(!text.contains("panicked"), "{text}");
     assert!(text.contains("-200170"), "{text}");
-    assert!(text.contains("Physical channel specified does not exist"), "{text}");
+    assert!(
+        text.contains("Physical channel specified does not exist"),
+        "{text}"
+    );
     assert!(text.contains("force_sensor.channels"), "{text}");
 }
 
@@ -571,14 +614,26 @@ fn ft_nidaqmx_without_the_library_fails_at_start_naming_what_to_install() {
 fn ft_nidaqmx_config_is_validated_before_anything_opens() {
     let tmp = tempfile::tempdir().unwrap();
     for (extra, key, why) in [
-        ("channels = \"Dev1/ai0:4\"", "force_sensor.channels", "six gauges"),
-        ("channels = \"ai0:5\"", "force_sensor.channels", "device name"),
+        (
+            "channels = \"Dev1/ai0:4\"",
+            "force_sensor.channels",
+            "six gauges",
+        ),
+        (
+            "channels = \"ai0:5\"",
+            "force_sensor.channels",
+            "device name",
+        ),
         (
             "thermistor_channel = \"Dev1/ai2\"",
             "force_sensor.thermistor_channel",
             "also a gauge",
         ),
-        ("terminal_config = \"pseudo\"", "terminal_config", "unknown variant"),
+        (
+            "terminal_config = \"pseudo\"",
+            "terminal_config",
+            "unknown variant",
+        ),
     ] {
         let cfg = ni_config(tmp.path(), extra);
         let out = rig_ft(&["tare"], &cfg, Some(&standin_path()));
@@ -594,7 +649,10 @@ fn ft_nidaqmx_config_is_validated_before_anything_opens() {
     let out = rig_ft(&["tare"], Path::new(&slow), Some(&standin_path()));
     let text = common::output_text(&out);
     assert!(!out.status.success(), "{text}");
-    assert!(text.contains("force_sensor.rate_hz") && text.contains("1000 Hz"), "{text}");
+    assert!(
+        text.contains("force_sensor.rate_hz") && text.contains("1000 Hz"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -607,13 +665,24 @@ fn ft_nidaqmx_simulated_run_records_a_dataset_that_checks_with_sync_under_1ms() 
         .arg(common::sim_config())
         .arg("--out")
         .arg(&out)
-        .args(["--limit", "2", "--speed-factor", "20", "--sim-ft", "nidaqmx"])
+        .args([
+            "--limit",
+            "24",
+            "--speed-factor",
+            "20",
+            "--sim-ft",
+            "nidaqmx",
+        ])
         .env(library::LIBRARY_ENV, standin_path())
         .output()
         .unwrap();
     let text = common::output_text(&run);
     assert!(run.status.success(), "{text}");
     assert!(text.contains("NI card"), "{text}");
+    assert!(
+        text.contains("24 trajectories recorded, 0 failed"),
+        "{text}"
+    );
     let check = Command::new(env!("CARGO_BIN_EXE_rig"))
         .args(["dataset", "check", "--json"])
         .arg(&out)
@@ -622,7 +691,7 @@ fn ft_nidaqmx_simulated_run_records_a_dataset_that_checks_with_sync_under_1ms() 
     let text = common::output_text(&check);
     assert!(check.status.success(), "{text}");
     let j: serde_json::Value = serde_json::from_slice(&check.stdout).unwrap();
-    assert_eq!(j["complete"], 2, "{j:#}");
+    assert_eq!(j["complete"], 24, "{j:#}");
     let p99 = j["sync_error"]["p99_ns"].as_f64().unwrap();
     assert!(p99 < 1e6, "sync p99 {p99} ns");
     for t in j["trajectories"].as_array().unwrap() {

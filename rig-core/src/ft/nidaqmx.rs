@@ -335,7 +335,9 @@ mod tests {
     fn ranges_lists_and_repeated_device_names_expand_like_ni() {
         assert_eq!(
             names("Dev1/ai0:5"),
-            ["Dev1/ai0", "Dev1/ai1", "Dev1/ai2", "Dev1/ai3", "Dev1/ai4", "Dev1/ai5"]
+            [
+                "Dev1/ai0", "Dev1/ai1", "Dev1/ai2", "Dev1/ai3", "Dev1/ai4", "Dev1/ai5"
+            ]
         );
         assert_eq!(names("Dev2/ai3:1"), ["Dev2/ai3", "Dev2/ai2", "Dev2/ai1"]);
         assert_eq!(
@@ -373,13 +375,21 @@ mod tests {
             default_thermistor_channel(&g).unwrap().to_string(),
             "Dev1/ai6"
         );
-        assert!(check_channels("Dev1/ai0:4", None).unwrap_err().contains("5 channels"));
-        assert!(check_channels("Dev1/ai0:4, Dev1/ai4", None)
-            .unwrap_err()
-            .contains("twice"));
-        assert!(check_channels("Dev1/ai0:5", Some("Dev1/ai3"))
-            .unwrap_err()
-            .contains("also a gauge"));
+        assert!(
+            check_channels("Dev1/ai0:4", None)
+                .unwrap_err()
+                .contains("5 channels")
+        );
+        assert!(
+            check_channels("Dev1/ai0:4, Dev1/ai4", None)
+                .unwrap_err()
+                .contains("twice")
+        );
+        assert!(
+            check_channels("Dev1/ai0:5", Some("Dev1/ai3"))
+                .unwrap_err()
+                .contains("also a gauge")
+        );
     }
 
     #[test]
@@ -393,8 +403,9 @@ mod tests {
         assert_eq!(classify(-200045), ErrorClass::DeviceGone);
         assert_eq!(classify(-200324), ErrorClass::DeviceGone);
         assert_eq!(classify(-200170), ErrorClass::Fatal);
-        for c in [-200279, -200284, -200010, -200361, -200045, -200324, -200220, -200170, -200022]
-        {
+        for c in [
+            -200279, -200284, -200010, -200361, -200045, -200324, -200220, -200170, -200022,
+        ] {
             assert!(hint(c).is_some(), "{c}");
         }
         assert!(hint(-1).is_none());

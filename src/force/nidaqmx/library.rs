@@ -136,7 +136,8 @@ fn open_cached(name: &str) -> Result<&'static Api, Open> {
     }
     // SAFETY: loading a shared library runs its initialisers; NI's library (or a stand-in with
     // its symbols) is what the operator pointed the rig at.
-    let lib = unsafe { libloading::Library::new(name) }.map_err(|e| Open::Missing(e.to_string()))?;
+    let lib =
+        unsafe { libloading::Library::new(name) }.map_err(|e| Open::Missing(e.to_string()))?;
     let api: &'static Api = Box::leak(Box::new(Api::resolve(name, lib).map_err(Open::Refused)?));
     loaded.insert(name.to_owned(), api);
     Ok(api)
@@ -269,7 +270,12 @@ impl Api {
         self.check(&format!("DAQmxCreateAIVoltageChan({physical})"), st)
     }
 
-    pub fn cfg_samp_clk_timing(&self, task: TaskHandle, rate_hz: f64, buffer: u64) -> Result<(), FtError> {
+    pub fn cfg_samp_clk_timing(
+        &self,
+        task: TaskHandle,
+        rate_hz: f64,
+        buffer: u64,
+    ) -> Result<(), FtError> {
         // SAFETY: NULL source: the card's onboard clock.
         let st = unsafe {
             (self.cfg_samp_clk_timing)(
@@ -351,7 +357,8 @@ impl Api {
         let mut n = 0u64;
         // SAFETY: a writable uInt64.
         let st = unsafe { (self.get_read_total_samp_per_chan_acquired)(task, &mut n) };
-        self.check("DAQmxGetReadTotalSampPerChanAcquired", st).map(|()| n)
+        self.check("DAQmxGetReadTotalSampPerChanAcquired", st)
+            .map(|()| n)
     }
 }
 

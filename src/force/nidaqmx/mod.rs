@@ -44,10 +44,13 @@ use super::error::FtError;
 use super::stream::FtStream;
 
 /// The task a `[force_sensor]` section with `kind = "nidaqmx"` describes.
-pub fn task_spec(cfg: &ForceSensorConfig, settings: &FrontEndSettings) -> Result<TaskSpec, FtError> {
+pub fn task_spec(
+    cfg: &ForceSensorConfig,
+    settings: &FrontEndSettings,
+) -> Result<TaskSpec, FtError> {
     let gauges = cfg.channels.as_deref().unwrap_or(ni::DEFAULT_CHANNELS);
-    let (gauges, thermistor) = ni::check_channels(gauges, cfg.thermistor_channel.as_deref())
-        .map_err(FtError::Config)?;
+    let (gauges, thermistor) =
+        ni::check_channels(gauges, cfg.thermistor_channel.as_deref()).map_err(FtError::Config)?;
     let thermistor = match settings.reads_thermistor() {
         true => thermistor.or_else(|| ni::default_thermistor_channel(&gauges)),
         false => None,

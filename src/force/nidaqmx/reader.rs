@@ -9,9 +9,9 @@ use tokio::sync::mpsc::UnboundedReceiver;
 use tokio::sync::mpsc::error::TryRecvError;
 
 use super::library::{Api, TaskHandle};
+use crate::force::FtError;
 use crate::force::conditioning::Conditioner;
 use crate::force::stream::{Control, FtStats, Sink};
-use crate::force::FtError;
 
 /// Clock time without a single sample after which the card counts as silent.
 pub const SILENCE_TIMEOUT_S: f64 = 2.0;
@@ -263,7 +263,10 @@ impl Reader {
     /// no read returned is lost, and so are the sample periods until it runs again (measured on
     /// the rig's clock). Restarts the task and continues the sample count past them.
     fn restart(&mut self) -> Result<(), FtError> {
-        let acquired = self.api.total_acquired(self.task.handle).unwrap_or(self.read_pos);
+        let acquired = self
+            .api
+            .total_acquired(self.task.handle)
+            .unwrap_or(self.read_pos);
         let stopped_ns = self.last_sample_ns;
         let _ = self.api.stop_task(self.task.handle);
         self.api.set_read_offset(self.task.handle, 0)?;

@@ -69,7 +69,9 @@ pub fn describe(code: i32) -> &'static str {
         DEVICE_REMOVED => "The device has been removed from the system.",
         DEVICE_ABSENT => "The device is not present or not available.",
         INVALID_DEVICE_ID => "Device identifier is invalid.",
-        PHYSICAL_CHANNEL_DOES_NOT_EXIST => "Physical channel specified does not exist on this device.",
+        PHYSICAL_CHANNEL_DOES_NOT_EXIST => {
+            "Physical channel specified does not exist on this device."
+        }
         RESOURCE_RESERVED => "The specified resource is reserved by another task.",
         INVALID_TASK => "Task specified is invalid or does not exist.",
         INVALID_ATTRIBUTE_VALUE => "Requested value is not a supported value for this property.",

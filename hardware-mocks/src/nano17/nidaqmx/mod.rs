@@ -132,7 +132,11 @@ impl Device {
         let real = t.elapsed().as_nanos() as f64;
         if real >= 50e6 {
             let r = now_ns.saturating_sub(c) as f64 / real;
-            self.pace = (Instant::now(), now_ns, if c == 0 || r <= 0.0 { rate } else { r });
+            self.pace = (
+                Instant::now(),
+                now_ns,
+                if c == 0 || r <= 0.0 { rate } else { r },
+            );
         }
         self.pace.2
     }
@@ -228,7 +232,10 @@ impl System {
         }
         check_device_name(device)?;
         let mut g = self.lock();
-        let seed = DEFAULT_SEED ^ device.bytes().fold(0u64, |a, b| a.rotate_left(8) ^ u64::from(b));
+        let seed = DEFAULT_SEED
+            ^ device
+                .bytes()
+                .fold(0u64, |a, b| a.rotate_left(8) ^ u64::from(b));
         match g.devices.get_mut(device) {
             Some(d) => {
                 d.hook = hook;
@@ -303,7 +310,10 @@ impl System {
     pub fn stats(&self, device: &str) -> Result<StandinStats, Fail> {
         let mut g = self.lock();
         let inner = &mut *g;
-        let d = inner.devices.get(device).ok_or_else(|| unknown_device(device))?;
+        let d = inner
+            .devices
+            .get(device)
+            .ok_or_else(|| unknown_device(device))?;
         let mut s = d.stats;
         if let Some(t) = d.reserved_by.and_then(|h| inner.tasks.get(&h)) {
             s.acquired = t.acquired(d, d.now_ns());

@@ -57,7 +57,8 @@ pub(crate) struct Task {
 
 impl Task {
     fn buffer(&self) -> u64 {
-        self.buffer.unwrap_or_else(|| self.finite.unwrap_or(0).max(DEFAULT_BUFFER))
+        self.buffer
+            .unwrap_or_else(|| self.finite.unwrap_or(0).max(DEFAULT_BUFFER))
     }
 
     fn sample_time_ns(&self, t0: u64, k: u64) -> u64 {
@@ -137,7 +138,10 @@ impl System {
     ) -> Result<(), Fail> {
         let mut g = self.lock();
         let inner = &mut *g;
-        let task = inner.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+        let task = inner
+            .tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))?;
         let ctx = |what: String| format!("{what}\nTask Name: {}", task.name);
         let bad_value = |what: String| Fail::new(errors::INVALID_ATTRIBUTE_VALUE, what);
         if ![val::DIFF, val::RSE, val::NRSE, val::CFG_DEFAULT].contains(&terminal) {
@@ -162,20 +166,22 @@ impl System {
         };
         let mut added = Vec::new();
         for entry in physical.split(',').map(str::trim) {
-            let (device, ais) = parse_entry(entry)
-                .ok_or_else(|| {
-                    Fail::new(
-                        errors::PHYSICAL_CHANNEL_DOES_NOT_EXIST,
-                        ctx(format!("Physical Channel Name: {entry}")),
-                    )
-                })?;
+            let (device, ais) = parse_entry(entry).ok_or_else(|| {
+                Fail::new(
+                    errors::PHYSICAL_CHANNEL_DOES_NOT_EXIST,
+                    ctx(format!("Physical Channel Name: {entry}")),
+                )
+            })?;
             let dev = inner.devices.get(device).ok_or_else(|| {
                 let mut f = super::unknown_device(device);
                 f.message.push_str(&format!("\nTask Name: {}", task.name));
                 f
             })?;
             if dev.removed {
-                return Err(Fail::new(errors::DEVICE_ABSENT, ctx(format!("Device: {device}"))));
+                return Err(Fail::new(
+                    errors::DEVICE_ABSENT,
+                    ctx(format!("Device: {device}")),
+                ));
             }
             if task.device.as_deref().is_some_and(|d| d != device) {
                 return Err(bad_value(ctx(format!(
@@ -213,7 +219,10 @@ impl System {
         samps_per_chan: u64,
     ) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+        let task = g
+            .tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))?;
         let nch = task.channels.len().max(1) as f64;
         let bad = |what: String| Fail::new(errors::INVALID_ATTRIBUTE_VALUE, what);
         if !(source.is_empty() || source == "OnboardClock") {
@@ -253,7 +262,10 @@ impl System {
     /// `DAQmxCfgInputBuffer`.
     pub fn cfg_input_buffer(&self, handle: u64, samps_per_chan: u32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+        let task = g
+            .tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))?;
         task.buffer = Some(u64::from(samps_per_chan.max(2)));
         Ok(())
     }
@@ -261,7 +273,10 @@ impl System {
     /// `DAQmxSetReadOverWrite`.
     pub fn set_read_overwrite(&self, handle: u64, mode: i32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+        let task = g
+            .tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))?;
         task.overwrite = match mode {
             val::OVERWRITE_UNREAD_SAMPS => true,
             val::DO_NOT_OVERWRITE_UNREAD_SAMPS => false,
@@ -278,7 +293,10 @@ impl System {
     /// `DAQmxSetReadRelativeTo`.
     pub fn set_read_relative_to(&self, handle: u64, to: i32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+        let task = g
+            .tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))?;
         if ![val::CURR_READ_POS, val::FIRST_SAMPLE, val::MOST_RECENT_SAMP].contains(&to) {
             return Err(Fail::new(
                 errors::INVALID_ATTRIBUTE_VALUE,
@@ -292,7 +310,10 @@ impl System {
     /// `DAQmxSetReadOffset`.
     pub fn set_read_offset(&self, handle: u64, offset: i32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+        let task = g
+            .tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))?;
         task.offset = offset;
         Ok(())
     }
@@ -307,7 +328,10 @@ impl System {
     pub fn stop_task(&self, handle: u64) -> Result<(), Fail> {
         let mut g = self.lock();
         let inner = &mut *g;
-        let task = inner.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+        let task = inner
+            .tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))?;
         let name = task.device.clone().unwrap_or_default();
         let mut removed = false;
         if task.run.is_some()
@@ -331,17 +355,22 @@ impl System {
     pub fn clear_task(&self, handle: u64) -> Result<(), Fail> {
         let _ = self.stop_task(handle);
         let mut g = self.lock();
-        g.tasks.remove(&handle).map(|_| ()).ok_or_else(|| invalid_task(handle))
+        g.tasks
+            .remove(&handle)
+            .map(|_| ())
+            .ok_or_else(|| invalid_task(handle))
     }
 
     /// `DAQmxGetReadTotalSampPerChanAcquired`.
     pub fn total_acquired(&self, handle: u64) -> Result<u64, Fail> {
         let g = self.lock();
         let task = g.tasks.get(&handle).ok_or_else(|| invalid_task(handle))?;
-        Ok(match task.device.as_deref().and_then(|d| g.devices.get(d)) {
-            Some(dev) => task.acquired(dev, dev.now_ns()),
-            None => 0,
-        })
+        Ok(
+            match task.device.as_deref().and_then(|d| g.devices.get(d)) {
+                Some(dev) => task.acquired(dev, dev.now_ns()),
+                None => 0,
+            },
+        )
     }
 
     /// `DAQmxReadAnalogF64`: `n` samples per channel (−1: all acquired and unread), waiting up
@@ -373,7 +402,9 @@ impl System {
             }
             let (Some(task), Some(dev)) = (
                 inner.tasks.get(&handle),
-                inner.devices.get_mut(inner.tasks[&handle].device.as_deref().unwrap_or("")),
+                inner
+                    .devices
+                    .get_mut(inner.tasks[&handle].device.as_deref().unwrap_or("")),
             ) else {
                 return fail(invalid_task(handle));
             };
@@ -391,7 +422,10 @@ impl System {
             let Ok(pos) = u64::try_from(pos) else {
                 return fail(Fail::new(
                     errors::INVALID_ATTRIBUTE_VALUE,
-                    format!("Property: DAQmx_Read_Offset\nRequested Value: {}", task.offset),
+                    format!(
+                        "Property: DAQmx_Read_Offset\nRequested Value: {}",
+                        task.offset
+                    ),
                 ));
             };
             let n = if n < 0 {
@@ -432,7 +466,16 @@ impl System {
         loop {
             let (wait_ns, rate) = {
                 let mut g = self.lock();
-                match self.try_read(&mut g, handle, pos, n, deadline, stall_until, fill_mode, out) {
+                match self.try_read(
+                    &mut g,
+                    handle,
+                    pos,
+                    n,
+                    deadline,
+                    stall_until,
+                    fill_mode,
+                    out,
+                ) {
                     Step::Done(o) => return o,
                     Step::Wait { clock_ns, rate } => (clock_ns, rate),
                 }
@@ -560,11 +603,17 @@ enum Step {
     Done(ReadOutcome),
     /// Not yet: wait about `clock_ns` of the device's clock, which runs `rate` times as fast
     /// as real time.
-    Wait { clock_ns: u64, rate: f64 },
+    Wait {
+        clock_ns: u64,
+        rate: f64,
+    },
 }
 
 fn start_locked(inner: &mut Inner, handle: u64) -> Result<(), Fail> {
-    let task = inner.tasks.get_mut(&handle).ok_or_else(|| invalid_task(handle))?;
+    let task = inner
+        .tasks
+        .get_mut(&handle)
+        .ok_or_else(|| invalid_task(handle))?;
     if task.run.is_some() {
         return Ok(());
     }
@@ -585,7 +634,10 @@ fn start_locked(inner: &mut Inner, handle: u64) -> Result<(), Fail> {
     if let Some(other) = dev.reserved_by.filter(|o| *o != handle) {
         return Err(Fail::new(
             errors::RESOURCE_RESERVED,
-            format!("Device: {name}\nTask Name: {}\nReserved by task handle {other:#x}", task.name),
+            format!(
+                "Device: {name}\nTask Name: {}\nReserved by task handle {other:#x}",
+                task.name
+            ),
         ));
     }
     let t0 = dev.now_ns() + dev.injections.late_start_ns;
