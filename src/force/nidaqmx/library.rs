@@ -19,7 +19,7 @@ use std::sync::{Mutex, OnceLock};
 
 use rig_core::ft::nidaqmx;
 
-use crate::force::FtError;
+use crate::force::error::FtError;
 
 /// The environment variable naming the NI-DAQmx library to load.
 pub const LIBRARY_ENV: &str = "RIG_NIDAQMX_LIBRARY";

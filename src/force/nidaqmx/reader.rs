@@ -9,8 +9,8 @@ use tokio::sync::mpsc::UnboundedReceiver;
 use tokio::sync::mpsc::error::TryRecvError;
 
 use super::library::{Api, TaskHandle};
-use crate::force::FtError;
 use crate::force::conditioning::Conditioner;
+use crate::force::error::FtError;
 use crate::force::stream::{Control, FtStats, Sink};
 
 /// Clock time without a single sample after which the card counts as silent.

@@ -1,96 +1,23 @@
-//! Tasks on the simulated card: channels, timing, buffer and read position, start and stop,
-//! and `DAQmxReadAnalogF64` (see the parent module for the card's behaviour).
+//! The NI-DAQmx calls on the simulated card's tasks: channels, timing, buffer and read
+//! position, start and stop, and `DAQmxReadAnalogF64` (see the parent module for the card's
+//! behaviour, `card` for its state).
 
 use std::time::{Duration, Instant};
 
 use rig_core::ft::nidaqmx::val;
 
+use super::card::{
+    AI_CHANNELS, Channel, DEFAULT_BUFFER, Device, Inner, MAX_AGGREGATE_RATE, RANGES_V, ReadOutcome,
+    Run, System, Task, Wire, unknown_device, wire,
+};
 use super::errors::{self, Fail};
 use super::hook::{FAULT_BIT_OVERLOAD, FAULT_BIT_REMOVED, LOG_WIDTH};
-use super::{AI_CHANNELS, Device, Inner, MAX_AGGREGATE_RATE, RANGES_V, System, Wire, wire};
 
 /// `DAQmx_Val_Falling`.
 const FALLING: i32 = 10171;
-/// NI's default input buffer for a continuous task at 100 S/s to 10 kS/s, samples per channel.
-const DEFAULT_BUFFER: u64 = 10_000;
 /// A read that waits this long in real time without its clock reaching the samples gives up
 /// with a timeout, whatever its own timeout (a simulator's clock that stopped for good).
 const REAL_TIME_GUARD: Duration = Duration::from_secs(60);
-
-/// One analog input of a task.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Channel {
-    pub ai: u32,
-    /// The card's range used for it, ±V.
-    pub range_v: f64,
-}
-
-/// A read's result: samples per channel read, and the error that cut it short, if any.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ReadOutcome {
-    pub read: usize,
-    pub error: Option<Fail>,
-}
-
-#[derive(Debug, Clone)]
-struct Run {
-    t0_ns: u64,
-    read_pos: u64,
-    /// An error that ended the acquisition (overflow, removal); every read returns it.
-    error: Option<Fail>,
-}
-
-/// A task: a device's channels and how they are sampled.
-#[derive(Debug, Clone)]
-pub(crate) struct Task {
-    name: String,
-    device: Option<String>,
-    channels: Vec<Channel>,
-    rate_hz: Option<f64>,
-    finite: Option<u64>,
-    buffer: Option<u64>,
-    overwrite: bool,
-    relative_to: i32,
-    offset: i32,
-    run: Option<Run>,
-}
-
-impl Task {
-    fn buffer(&self) -> u64 {
-        self.buffer
-            .unwrap_or_else(|| self.finite.unwrap_or(0).max(DEFAULT_BUFFER))
-    }
-
-    fn sample_time_ns(&self, t0: u64, k: u64) -> u64 {
-        let rate = self.rate_hz.unwrap_or(1.0);
-        t0 + (k as f64 * 1e9 / rate).round() as u64
-    }
-
-    /// Samples per channel the sample clock has ticked by clock time `now` (0 when stopped), not
-    /// counting what an injected removal or FIFO overflow stops.
-    fn ticked(&self, now: u64) -> u64 {
-        let (Some(run), Some(rate)) = (&self.run, self.rate_hz) else {
-            return 0;
-        };
-        if now < run.t0_ns {
-            return 0;
-        }
-        let n = ((now - run.t0_ns) as f64 * rate * 1e-9).floor() as u64 + 1;
-        self.finite.map_or(n, |f| n.min(f))
-    }
-
-    /// Samples per channel acquired by clock time `now`.
-    pub(crate) fn acquired(&self, dev: &Device, now: u64) -> u64 {
-        let mut n = self.ticked(now);
-        for cap in [dev.injections.remove_at, dev.injections.fifo_at]
-            .into_iter()
-            .flatten()
-        {
-            n = n.min(cap);
-        }
-        n
-    }
-}
 
 fn invalid_task(handle: u64) -> Fail {
     Fail::new(errors::INVALID_TASK, format!("Task Handle: {handle:#x}"))
@@ -173,7 +100,7 @@ impl System {
                 )
             })?;
             let dev = inner.devices.get(device).ok_or_else(|| {
-                let mut f = super::unknown_device(device);
+                let mut f = unknown_device(device);
                 f.message.push_str(&format!("\nTask Name: {}", task.name));
                 f
             })?;
@@ -514,7 +441,7 @@ impl System {
         let Some(dev) = inner.devices.get_mut(&name) else {
             return Step::Done(ReadOutcome {
                 read: 0,
-                error: Some(super::unknown_device(&name)),
+                error: Some(unknown_device(&name)),
             });
         };
         let done = |read, e: Option<Fail>| Step::Done(ReadOutcome { read, error: e });
@@ -627,7 +554,7 @@ fn start_locked(inner: &mut Inner, handle: u64) -> Result<(), Fail> {
     let dev = inner
         .devices
         .get_mut(&name)
-        .ok_or_else(|| super::unknown_device(&name))?;
+        .ok_or_else(|| unknown_device(&name))?;
     if dev.removed {
         return Err(Fail::new(errors::DEVICE_ABSENT, format!("Device: {name}")));
     }
