@@ -34,6 +34,13 @@ pub const INSTALL_HINT: &str = "install NI-DAQmx for Linux (NI's `ni-daqmx` pack
 /// NI's `TaskHandle`.
 pub type TaskHandle = *mut c_void;
 
+/// A task handle that [`Api::create_task`] made: the only handles the other calls take.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Handle(TaskHandle);
+
+// An opaque token of NI's library, usable from any thread (one at a time, as the reader does).
+unsafe impl Send for Handle {}
+
 type CreateTask = unsafe extern "C" fn(*const c_char, *mut TaskHandle) -> i32;
 type CreateAiVoltageChan = unsafe extern "C" fn(
     TaskHandle,
@@ -236,17 +243,17 @@ impl Api {
         }
     }
 
-    pub fn create_task(&self, name: &str) -> Result<TaskHandle, FtError> {
+    pub fn create_task(&self, name: &str) -> Result<Handle, FtError> {
         let name = c_string(name)?;
         let mut task: TaskHandle = std::ptr::null_mut();
         // SAFETY: C string and a writable handle, as NIDAQmx.h declares.
         let st = unsafe { (self.create_task)(name.as_ptr(), &mut task) };
-        self.check("DAQmxCreateTask", st).map(|()| task)
+        self.check("DAQmxCreateTask", st).map(|()| Handle(task))
     }
 
     pub fn create_ai_voltage_chan(
         &self,
-        task: TaskHandle,
+        task: Handle,
         physical: &str,
         terminal: i32,
         min_v: f64,
@@ -257,7 +264,7 @@ impl Api {
         // SAFETY: C strings for the names, NULL for no custom scale.
         let st = unsafe {
             (self.create_ai_voltage_chan)(
-                task,
+                task.0,
                 phys.as_ptr(),
                 empty.as_ptr(),
                 terminal,
@@ -272,14 +279,14 @@ impl Api {
 
     pub fn cfg_samp_clk_timing(
         &self,
-        task: TaskHandle,
+        task: Handle,
         rate_hz: f64,
         buffer: u64,
     ) -> Result<(), FtError> {
         // SAFETY: NULL source: the card's onboard clock.
         let st = unsafe {
             (self.cfg_samp_clk_timing)(
-                task,
+                task.0,
                 std::ptr::null(),
                 rate_hz,
                 nidaqmx::val::RISING,
@@ -290,47 +297,47 @@ impl Api {
         self.check("DAQmxCfgSampClkTiming", st)
     }
 
-    pub fn cfg_input_buffer(&self, task: TaskHandle, samples: u32) -> Result<(), FtError> {
+    pub fn cfg_input_buffer(&self, task: Handle, samples: u32) -> Result<(), FtError> {
         // SAFETY: plain values.
-        let st = unsafe { (self.cfg_input_buffer)(task, samples) };
+        let st = unsafe { (self.cfg_input_buffer)(task.0, samples) };
         self.check("DAQmxCfgInputBuffer", st)
     }
 
-    pub fn set_read_overwrite(&self, task: TaskHandle, mode: i32) -> Result<(), FtError> {
+    pub fn set_read_overwrite(&self, task: Handle, mode: i32) -> Result<(), FtError> {
         // SAFETY: plain values.
-        let st = unsafe { (self.set_read_overwrite)(task, mode) };
+        let st = unsafe { (self.set_read_overwrite)(task.0, mode) };
         self.check("DAQmxSetReadOverWrite", st)
     }
 
-    pub fn set_read_offset(&self, task: TaskHandle, offset: i32) -> Result<(), FtError> {
+    pub fn set_read_offset(&self, task: Handle, offset: i32) -> Result<(), FtError> {
         // SAFETY: plain values.
-        let st = unsafe { (self.set_read_offset)(task, offset) };
+        let st = unsafe { (self.set_read_offset)(task.0, offset) };
         self.check("DAQmxSetReadOffset", st)
     }
 
-    pub fn start_task(&self, task: TaskHandle) -> Result<(), FtError> {
+    pub fn start_task(&self, task: Handle) -> Result<(), FtError> {
         // SAFETY: a handle from DAQmxCreateTask.
-        let st = unsafe { (self.start_task)(task) };
+        let st = unsafe { (self.start_task)(task.0) };
         self.check("DAQmxStartTask", st)
     }
 
-    pub fn stop_task(&self, task: TaskHandle) -> Result<(), FtError> {
+    pub fn stop_task(&self, task: Handle) -> Result<(), FtError> {
         // SAFETY: a handle from DAQmxCreateTask.
-        let st = unsafe { (self.stop_task)(task) };
+        let st = unsafe { (self.stop_task)(task.0) };
         self.check("DAQmxStopTask", st)
     }
 
     /// Clears the task (stopping it first); errors are of no use here.
-    pub fn clear_task(&self, task: TaskHandle) {
+    pub fn clear_task(&self, task: Handle) {
         // SAFETY: a handle from DAQmxCreateTask, cleared once.
-        let _ = unsafe { (self.clear_task)(task) };
+        let _ = unsafe { (self.clear_task)(task.0) };
     }
 
     /// `DAQmxReadAnalogF64`, interleaved by scan: returns the status and the samples per channel
     /// read (a read cut short by an error still returns what it read).
     pub fn read_analog_f64(
         &self,
-        task: TaskHandle,
+        task: Handle,
         samples: i32,
         timeout_s: f64,
         out: &mut [f64],
@@ -340,7 +347,7 @@ impl Api {
         // SAFETY: `out` holds `size` doubles; `read` is writable; reserved is NULL.
         let st = unsafe {
             (self.read_analog_f64)(
-                task,
+                task.0,
                 samples,
                 timeout_s,
                 nidaqmx::val::GROUP_BY_SCAN_NUMBER,
@@ -353,10 +360,10 @@ impl Api {
         (st, usize::try_from(read).unwrap_or(0))
     }
 
-    pub fn total_acquired(&self, task: TaskHandle) -> Result<u64, FtError> {
+    pub fn total_acquired(&self, task: Handle) -> Result<u64, FtError> {
         let mut n = 0u64;
         // SAFETY: a writable uInt64.
-        let st = unsafe { (self.get_read_total_samp_per_chan_acquired)(task, &mut n) };
+        let st = unsafe { (self.get_read_total_samp_per_chan_acquired)(task.0, &mut n) };
         self.check("DAQmxGetReadTotalSampPerChanAcquired", st)
             .map(|()| n)
     }

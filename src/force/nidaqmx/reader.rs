@@ -8,7 +8,7 @@ use rig_core::ft::nidaqmx::{self as ni, ErrorClass, PhysicalChannel, TerminalCon
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio::sync::mpsc::error::TryRecvError;
 
-use super::library::{Api, TaskHandle};
+use super::library::{Api, Handle};
 use crate::force::conditioning::Conditioner;
 use crate::force::error::FtError;
 use crate::force::stream::{Control, FtStats, Sink};
@@ -50,11 +50,8 @@ impl TaskSpec {
 /// A configured, started task. Cleared when dropped.
 pub(super) struct Task {
     api: &'static Api,
-    handle: TaskHandle,
+    handle: Handle,
 }
-
-// The handle is an opaque token NI's library hands out; this thread is its only user.
-unsafe impl Send for Task {}
 
 impl Drop for Task {
     fn drop(&mut self) {
