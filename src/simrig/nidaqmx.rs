@@ -5,7 +5,7 @@
 
 use std::ffi::{CString, c_char, c_void};
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use anyhow::Context;
 use hardware_mocks::nano17::Faults;
@@ -13,7 +13,7 @@ use hardware_mocks::nano17::nidaqmx::hook::{
     FAULT_BIT_OVERLOAD, FAULT_BIT_REMOVED, HOOK_VERSION, StandinHook,
 };
 use hardware_mocks::truth::SharedWrenchSource;
-use rig_core::clock::Clock;
+use rig_core::clock::{Clock, Pacer, SIM_PACER_LEAD};
 use rig_core::config::ForceSensorConfig;
 use rig_core::ft::nidaqmx::DEFAULT_CHANNELS;
 use rig_core::ft::transform::ToolTransform;
@@ -41,9 +41,14 @@ pub fn standin_path() -> anyhow::Result<PathBuf> {
 }
 
 /// What the stand-in's callbacks read: the simulated rig's clock, its true wrench at the tool
-/// point (moved to the sensor frame here) and its F/T faults.
+/// point (moved to the sensor frame here) and its F/T faults. While the card acquires, its
+/// reader polls the clock as it waits for samples; each poll reports to a pacer of the simulated
+/// clock, so a host that stalls the reader thread holds simulated time instead of letting the
+/// card overwrite its buffer (as every simulated device does). A card that stops acquiring (the
+/// stream ended, the card removed) drops its pacer, so the rest of the rig runs on.
 struct HookCtx {
     clock: Clock,
+    pacer: Mutex<Option<Pacer>>,
     source: SharedWrenchSource,
     tool: ToolTransform,
     faults: Arc<Faults>,
@@ -52,7 +57,20 @@ struct HookCtx {
 unsafe extern "C" fn now_ns(ctx: *mut c_void) -> u64 {
     // SAFETY: `ctx` is the `HookCtx` the guard owns until after detaching.
     let ctx = unsafe { &*ctx.cast::<HookCtx>() };
-    ctx.clock.now_ns()
+    let now = ctx.clock.now_ns();
+    if let Some(p) = ctx.pacer.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
+        p.reached(now);
+    }
+    now
+}
+
+unsafe extern "C" fn acquiring(ctx: *mut c_void, on: u32) {
+    // SAFETY: as in `now_ns`.
+    let ctx = unsafe { &*ctx.cast::<HookCtx>() };
+    *ctx.pacer.lock().unwrap_or_else(|e| e.into_inner()) = (on != 0).then(|| {
+        ctx.clock
+            .pacer("simulated NI card's reader", SIM_PACER_LEAD)
+    });
 }
 
 unsafe extern "C" fn wrench_at(ctx: *mut c_void, t_ns: u64, out: *mut f64) {
@@ -115,6 +133,7 @@ fn attach(api: &Api, ctx: HookCtx) -> anyhow::Result<Attached> {
         now_ns: Some(now_ns),
         wrench_at: Some(wrench_at),
         faults: Some(faults),
+        acquiring: Some(acquiring),
     };
     let guard = Attached {
         detach,
@@ -152,6 +171,7 @@ pub async fn open(
         api,
         HookCtx {
             clock: clock.clone(),
+            pacer: Mutex::new(None),
             source,
             tool: settings.tool.clone(),
             faults,

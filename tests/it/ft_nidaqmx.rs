@@ -105,8 +105,11 @@ impl Standin {
 }
 
 /// What the test's hook hands the card: the test's clock and a load that starts at `from_ns`.
+/// With a pacer (as the simulated rig's hook has), the reader's polls pace the fast clock, so a
+/// host that stalls the reader thread holds the clock rather than overrunning the card.
 struct Scene {
     clock: Clock,
+    pacer: Option<rig_core::clock::Pacer>,
     load_from_ns: AtomicU64,
 }
 
@@ -128,7 +131,12 @@ fn load(t_ns: u64, from_ns: u64) -> [f64; 6] {
 }
 
 unsafe extern "C" fn scene_now(ctx: *mut c_void) -> u64 {
-    unsafe { &*ctx.cast::<Scene>() }.clock.now_ns()
+    let s = unsafe { &*ctx.cast::<Scene>() };
+    let now = s.clock.now_ns();
+    if let Some(p) = &s.pacer {
+        p.reached(now);
+    }
+    now
 }
 
 unsafe extern "C" fn scene_wrench(ctx: *mut c_void, t_ns: u64, out: *mut f64) {
@@ -137,10 +145,11 @@ unsafe extern "C" fn scene_wrench(ctx: *mut c_void, t_ns: u64, out: *mut f64) {
     unsafe { std::ptr::copy_nonoverlapping(w.as_ptr(), out, 6) };
 }
 
-/// Attaches `scene` to `device` (the scene must outlive the device's use; tests leak it).
-fn attach_scene(ni: &Standin, device: &str, clock: &Clock) -> &'static Scene {
+/// Attaches a scene to `device` (the scene must outlive the device's use; tests leak it).
+fn attach_scene(ni: &Standin, device: &str, clock: &Clock, paced: bool) -> &'static Scene {
     let scene: &'static Scene = Box::leak(Box::new(Scene {
         clock: clock.clone(),
+        pacer: paced.then(|| clock.pacer("test NI reader", rig_core::clock::SIM_PACER_LEAD)),
         load_from_ns: AtomicU64::new(u64::MAX),
     }));
     let hook = StandinHook {
@@ -149,6 +158,7 @@ fn attach_scene(ni: &Standin, device: &str, clock: &Clock) -> &'static Scene {
         now_ns: Some(scene_now),
         wrench_at: Some(scene_wrench),
         faults: None,
+        acquiring: None,
     };
     ni.attach(device, Some(&hook));
     scene
@@ -228,7 +238,7 @@ async fn ft_nidaqmx_streams_a_minute_at_1khz_with_no_loss_and_the_calibration_ap
     const DEV: &str = "NiA";
     let clock = Clock::scaled(20.0);
     let ni = Standin::load();
-    let scene = attach_scene(&ni, DEV, &clock);
+    let scene = attach_scene(&ni, DEV, &clock, true);
     ni.log(DEV, 80_000);
     let cal = Calibration::load(cal_path()).unwrap();
     let mut stream = nidaqmx::open_with(ni.api, spec(DEV, &cal), settings(&cal), clock.clone())
@@ -290,7 +300,7 @@ async fn ft_nidaqmx_counts_an_injected_overrun_exactly_and_keeps_the_indices() {
     const DEV: &str = "NiB";
     let clock = Clock::scaled(20.0);
     let ni = Standin::load();
-    attach_scene(&ni, DEV, &clock);
+    attach_scene(&ni, DEV, &clock, false);
     ni.log(DEV, 40_000);
     // The host stalls when its reads reach sample 3000, past the card's 2 s buffer.
     ni.inject(DEV, fault::OVERRUN, 3000, 0);
@@ -341,7 +351,7 @@ async fn ft_nidaqmx_device_removal_trips_the_supervisor_within_one_stall_period(
     const DEV: &str = "NiC";
     let clock = Clock::scaled(10.0);
     let ni = Standin::load();
-    attach_scene(&ni, DEV, &clock);
+    attach_scene(&ni, DEV, &clock, false);
     ni.inject(DEV, fault::REMOVE, 1500, 0);
     let cal = Calibration::load(cal_path()).unwrap();
     let stream = nidaqmx::open_with(ni.api, spec(DEV, &cal), settings(&cal), clock.clone())
@@ -424,7 +434,7 @@ async fn ft_nidaqmx_indices_on_the_sample_clock_survive_a_late_start() {
     const DEV: &str = "NiE";
     let clock = Clock::scaled(10.0);
     let ni = Standin::load();
-    attach_scene(&ni, DEV, &clock);
+    attach_scene(&ni, DEV, &clock, false);
     // The sample clock starts 300 ms after the task.
     ni.inject(DEV, fault::LATE_START, 0, 300_000_000);
     let cal = Calibration::load(cal_path()).unwrap();
@@ -470,7 +480,7 @@ async fn ft_nidaqmx_fifo_overflow_restarts_the_card_and_counts_the_stopped_stret
     const DEV: &str = "NiF";
     let clock = Clock::scaled(10.0);
     let ni = Standin::load();
-    attach_scene(&ni, DEV, &clock);
+    attach_scene(&ni, DEV, &clock, false);
     ni.inject(DEV, fault::FIFO_OVERFLOW, 2000, 0);
     let cal = Calibration::load(cal_path()).unwrap();
     let mut stream = nidaqmx::open_with(ni.api, spec(DEV, &cal), settings(&cal), clock.clone())
@@ -697,4 +707,48 @@ fn ft_nidaqmx_simulated_run_records_a_dataset_that_checks_with_sync_under_1ms() 
     for t in j["trajectories"].as_array().unwrap() {
         assert_eq!(t["wrench_seq_gaps"].as_array().unwrap().len(), 0, "{t:#}");
     }
+}
+
+#[test]
+fn ft_nidaqmx_a_card_removed_mid_press_stops_the_run_and_resume_completes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let _rig = common::one_rig_at_a_time();
+    let run = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_rig"))
+            .args(["run", "--indenter", "cone", "--config"])
+            .arg(common::sim_config())
+            .arg("--out")
+            .arg(&out)
+            .args([
+                "--limit",
+                "3",
+                "--speed-factor",
+                "20",
+                "--sim-ft",
+                "nidaqmx",
+            ])
+            .args(extra)
+            .env(library::LIBRARY_ENV, standin_path())
+            .output()
+            .unwrap()
+    };
+    let first = run(&["--sim-fault", "ft-unplug@p0-d0.2-a030/down+500"]);
+    let text = common::output_text(&first);
+    assert!(!first.status.success(), "{text}");
+    assert!(text.contains("status -200045"), "{text}");
+    assert!(text.contains("nothing more can be recorded"), "{text}");
+    let m = rig::record::Manifest::load(&out).unwrap();
+    assert_eq!(
+        m.entry("p0-d0.2-a000").unwrap().status,
+        rig::record::Status::Complete
+    );
+    assert_eq!(
+        m.entry("p0-d0.2-a030").unwrap().status,
+        rig::record::Status::Failed
+    );
+    let again = run(&["--resume"]);
+    let text = common::output_text(&again);
+    assert!(again.status.success(), "{text}");
+    assert!(text.contains("dataset check: OK, 3 complete"), "{text}");
 }

@@ -129,6 +129,16 @@ impl Device {
         w
     }
 
+    /// Tells the hook a task started or stopped acquiring.
+    pub fn acquiring(&self, on: bool) {
+        if let Some(h) = self.hook
+            && let Some(f) = h.acquiring
+        {
+            // SAFETY: as in `now_ns`.
+            unsafe { f(h.ctx, u32::from(on)) };
+        }
+    }
+
     /// The hook's fault bits now.
     pub fn fault_bits(&self) -> u32 {
         match self.hook.and_then(|h| h.faults.map(|f| (f, h.ctx))) {

@@ -25,6 +25,9 @@ pub type NowFn = unsafe extern "C" fn(ctx: *mut c_void) -> u64;
 pub type WrenchAtFn = unsafe extern "C" fn(ctx: *mut c_void, t_ns: u64, out: *mut f64);
 /// `faults(ctx)`: the simulator's fault bits now ([`FAULT_BIT_REMOVED`], [`FAULT_BIT_OVERLOAD`]).
 pub type FaultsFn = unsafe extern "C" fn(ctx: *mut c_void) -> u32;
+/// `acquiring(ctx, on)`: a task on the device started (1) or stopped (0) acquiring. While one
+/// runs, its reads poll `now_ns`; a simulator can pace its clock on those polls.
+pub type AcquiringFn = unsafe extern "C" fn(ctx: *mut c_void, on: u32);
 
 /// Fault bit: the card has been unplugged (reads fail with `-200045` from the current sample).
 pub const FAULT_BIT_REMOVED: u32 = 1 << 0;
@@ -43,6 +46,8 @@ pub struct StandinHook {
     pub wrench_at: Option<WrenchAtFn>,
     /// `None`: no faults.
     pub faults: Option<FaultsFn>,
+    /// `None`: not told.
+    pub acquiring: Option<AcquiringFn>,
 }
 
 // The hook is a set of C callbacks the attaching side promises are thread-safe.

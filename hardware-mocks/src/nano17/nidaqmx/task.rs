@@ -269,6 +269,7 @@ impl System {
                 dev.reserved_by = None;
             }
             dev.injections.fifo_at = None;
+            dev.acquiring(false);
             removed = dev.removed;
         }
         task.run = None;
@@ -567,6 +568,7 @@ fn start_locked(inner: &mut Inner, handle: u64) -> Result<(), Fail> {
             ),
         ));
     }
+    dev.acquiring(true);
     let t0 = dev.now_ns() + dev.injections.late_start_ns;
     dev.reserved_by = Some(handle);
     dev.stats.first_sample_ns = t0;
