@@ -33,8 +33,9 @@ pub struct RunArgs {
     /// Simulated rig only: run the simulated clock this many times faster than real time.
     #[arg(long, value_name = "F", default_value_t = 10.0)]
     pub speed_factor: f64,
-    /// Simulated rig only: how the simulated Nano17 is connected (a Net F/T on UDP, or an F/T
-    /// controller on a serial pty).
+    /// Simulated rig only: how the simulated Nano17 is connected (a Net F/T on UDP, an F/T
+    /// controller on a serial pty, or an NI card read through the stand-in NI-DAQmx library,
+    /// found beside the rig executable or at RIG_NIDAQMX_LIBRARY).
     #[arg(long, value_enum, value_name = "FRONT_END", default_value = "netft")]
     pub sim_ft: SimFt,
     /// Simulated rig only: inject a fault (a drill for operators, and the fault tests):
@@ -77,6 +78,8 @@ fn contact_cache_dir(args: &RunArgs) -> Option<PathBuf> {
 pub enum SimFt {
     Netft,
     Serial,
+    /// An NI card behind the stand-in NI-DAQmx library (`cargo build -p nidaqmx-standin`).
+    Nidaqmx,
 }
 
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
@@ -99,6 +102,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
             match args.sim_ft {
                 SimFt::Netft => "Net F/T on loopback UDP",
                 SimFt::Serial => "F/T controller on a pty",
+                SimFt::Nidaqmx => "NI card behind the stand-in NI-DAQmx library",
             },
             args.speed_factor
         );
@@ -113,6 +117,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         sim_ft: match args.sim_ft {
             SimFt::Netft => crate::simrig::SimFtFrontEnd::NetFt,
             SimFt::Serial => crate::simrig::SimFtFrontEnd::Serial,
+            SimFt::Nidaqmx => crate::simrig::SimFtFrontEnd::NiDaqmx,
         },
         ..crate::run::RunOptions::new(out.clone())
     };

@@ -255,6 +255,36 @@ impl FrontEndSettings {
         })
     }
 
+    /// A conditioner for gauge volts, the one code path of both DAQ routes (NI-DAQmx and the
+    /// serial framing): the calibration file, with its temperature compensation when enabled.
+    /// `kind` names the config value in the error when no calibration file is set.
+    pub fn gauges_conditioner(&self, kind: &str) -> Result<Conditioner, FtError> {
+        let calibration = self.calibration.clone().ok_or_else(|| {
+            FtError::Config(format!(
+                "force_sensor.calibration_file is required when force_sensor.kind is \"{kind}\""
+            ))
+        })?;
+        Ok(Conditioner::new(
+            RawMap::Gauges {
+                calibration: Box::new(calibration),
+                temperature_compensation: self.temperature_compensation,
+            },
+            self.tool.clone(),
+            self.max_loads,
+            self.saturation,
+        ))
+    }
+
+    /// Whether a gauge route reads the thermistor: compensation is on and the calibration file
+    /// has its data.
+    pub fn reads_thermistor(&self) -> bool {
+        self.temperature_compensation
+            && self
+                .calibration
+                .as_ref()
+                .is_some_and(|c| c.temperature.is_some())
+    }
+
     /// A conditioner for counts.
     pub fn counts_conditioner(&self) -> Conditioner {
         Conditioner::new(

@@ -1,4 +1,8 @@
-//! The DAQ gauge stream (framing: `rig_core::ft::daq`) on a serial port.
+//! The DAQ gauge stream (framing: `rig_core::ft::daq`) on a serial port: the route for a
+//! home-built front end (a microcontroller with a multi-channel ADC wired to the Nano17's
+//! amplifier outputs), for a lab without an NI card. A lab with ATI's DAQ F/T system (an NI
+//! card) uses [`super::nidaqmx`]; both turn gauge volts into a wrench through the same
+//! [`FrontEndSettings::gauges_conditioner`].
 //!
 //! One OS thread owns the port (blocking `serialport`), feeds [`DaqParser`], tracks the frame
 //! sequence for exact loss counts, and conditions each frame with the calibration file:
@@ -15,7 +19,7 @@ use rig_core::ft::SampleFlags;
 use rig_core::ft::daq::{DaqParser, STATUS_ADC_FAULT};
 use rig_core::ft::sequence::SequenceTracker;
 
-use super::conditioning::{Conditioner, FrontEndSettings, RawMap};
+use super::conditioning::FrontEndSettings;
 use super::error::FtError;
 use super::stream::{Control, FtStats, FtStream};
 
@@ -29,11 +33,7 @@ pub async fn open(
     settings: FrontEndSettings,
     clock: Clock,
 ) -> Result<FtStream, FtError> {
-    let calibration = settings.calibration.clone().ok_or_else(|| {
-        FtError::Config(
-            "force_sensor.calibration_file is required when force_sensor.kind is \"daq\"".into(),
-        )
-    })?;
+    let mut cond = settings.gauges_conditioner("daq")?;
     let mut port = serialport::new(port_name, baud)
         .timeout(READ_TIMEOUT)
         .open_native()
@@ -42,15 +42,6 @@ pub async fn open(
             reason: e.to_string(),
         })?;
     let (stream, sink, mut ctl, done) = FtStream::channel(format!("DAQ {port_name}"));
-    let mut cond = Conditioner::new(
-        RawMap::Gauges {
-            calibration: Box::new(calibration),
-            temperature_compensation: settings.temperature_compensation,
-        },
-        settings.tool.clone(),
-        settings.max_loads,
-        settings.saturation,
-    );
     let port_name = port_name.to_owned();
     std::thread::Builder::new()
         .name("ft-daq".into())

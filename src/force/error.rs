@@ -33,6 +33,17 @@ pub enum FtError {
     Transform(#[from] TransformError),
     #[error("force_sensor config: {0}")]
     Config(String),
+    /// The NI-DAQmx library could not be loaded (the message says what to install).
+    #[error("{0}")]
+    NiLibrary(String),
+    /// An NI-DAQmx call failed: NI's own message, and what to check.
+    #[error("NI-DAQmx {call} failed with status {code}: {message}{}", hint.as_ref().map(|h| format!(" ({h})")).unwrap_or_default())]
+    Ni {
+        call: String,
+        code: i32,
+        message: String,
+        hint: Option<String>,
+    },
     #[error("F/T stream already stopped")]
     Stopped,
 }

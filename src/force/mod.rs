@@ -1,4 +1,4 @@
-//! Nano17 force/torque sensing: three front ends, one stream of [`WrenchSample`]s.
+//! Nano17 force/torque sensing: four front ends, one stream of [`WrenchSample`]s.
 //!
 //! The protocol cores are sans-IO and live in `rig_core::ft`; this module owns the ports and
 //! sockets, the timestamps and the per-sample conditioning:
@@ -8,8 +8,10 @@
 //!   stream with `QS`, stop with a CR.
 //! - [`netft`]: a Net F/T over UDP (RDT): start/stop streaming, optional software bias, exact
 //!   loss / reorder counts from the RDT sequence.
-//! - [`daq`]: raw gauge voltages in the project's DAQ framing, turned into a wrench with the
-//!   sensor's calibration file (temperature-compensated when the file allows).
+//! - [`nidaqmx`]: ATI's DAQ F/T system, the gauge voltages on an NI card read through
+//!   NI-DAQmx (loaded at run time), turned into a wrench with the sensor's calibration file.
+//! - [`daq`]: raw gauge voltages from a home-built front end in the project's serial framing,
+//!   turned into a wrench the same way (temperature-compensated when the file allows).
 //!
 //! Every reader timestamps a sample with the shared [`Clock`] when its bytes arrive
 //! (`t_host_ns`) and keeps the device's own sequence (`device_seq`), so the sync stage can map
@@ -25,13 +27,14 @@
 //!
 //! Files: [`stream`] (the stream, its samples, counters and controls), [`conditioning`] (raw
 //! readings to a wrench, tare, checks, the front-end settings), [`error`]; the readers in
-//! [`serial`], [`netft`] and [`daq`]. Their items are re-exported here; the `rig ft` command is
+//! [`serial`], [`netft`], [`nidaqmx`] and [`daq`]. Their items are re-exported here; the `rig ft` command is
 //! `crate::cli::ft`.
 
 pub mod conditioning;
 pub mod daq;
 pub mod error;
 pub mod netft;
+pub mod nidaqmx;
 pub mod serial;
 pub mod stream;
 
@@ -74,6 +77,7 @@ pub async fn open(cfg: &ForceSensorConfig, clock: Clock) -> Result<FtStream, FtE
                 .ok_or_else(|| FtError::Config("force_sensor.port is required".into()))?;
             daq::open(&port, cfg.baud.unwrap_or(921_600), settings, clock).await
         }
+        ForceSensorKind::Nidaqmx => nidaqmx::open(cfg, settings, clock).await,
         ForceSensorKind::Netft => {
             let addr = cfg
                 .address

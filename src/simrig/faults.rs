@@ -32,7 +32,8 @@ pub enum SimFaultKind {
     ProtectiveStop,
     /// The UR5e closes every connection and refuses new ones for 1 s of clock time.
     RtdeDrop,
-    /// The F/T front end is unplugged (a serial front end closes its pty).
+    /// The F/T front end is unplugged (a serial front end closes its pty; an NI card is
+    /// removed, `-200045`).
     FtUnplug,
     /// The camera stops sending frames.
     CameraStall,

@@ -3,7 +3,8 @@
 //! With no lab rig configured (`robot.simulated = true`, as in the embedded default config),
 //! `rig run` runs on the simulated rig of `hardware-mocks`, started in-process: a UR5e on
 //! loopback RTDE, dashboard and secondary-interface sockets, a Nano17 behind a Net F/T on
-//! loopback UDP (or an F/T controller on a pty), and a GelSight camera, all driven by one
+//! loopback UDP (or an F/T controller on a pty, or an NI card behind the stand-in NI-DAQmx
+//! library, [`nidaqmx`]), and a GelSight camera, all driven by one
 //! contact scene whose indenter follows the simulated UR5e's TCP. Its clock may run faster than
 //! real time. Everything here hands the rest of the crate lab-shaped things: robot endpoints,
 //! an [`FtStream`] read by the lab's own front-end code, and a [`FrameSource`]. The lab code
@@ -23,6 +24,7 @@ mod faults;
 pub mod forces;
 mod ft;
 mod governor;
+pub mod nidaqmx;
 pub mod render;
 
 use std::sync::Arc;
@@ -218,6 +220,11 @@ pub async fn start(
                 clock.clone(),
             )
             .await?
+        }
+        SimFtFrontEnd::NiDaqmx => {
+            let source: hardware_mocks::truth::SharedWrenchSource = Arc::new(rig.physics().clone());
+            let faults = rig.ft().faults().clone();
+            nidaqmx::open(fs, &mut settings, source, faults, clock.clone()).await?
         }
     };
 

@@ -23,6 +23,7 @@ mod fault_drills;
 mod flow;
 mod ft_daq;
 mod ft_netft;
+mod ft_nidaqmx;
 mod ft_serial;
 mod inception;
 mod live_view;

@@ -1,7 +1,8 @@
-//! Simulated ATI Nano17 front ends: an F/T controller on a pty, a Net F/T on UDP, and a DAQ
-//! gauge stream on a pty.
+//! Simulated ATI Nano17 front ends: an F/T controller on a pty, a Net F/T on UDP, a DAQ
+//! gauge stream on a pty, and an NI data-acquisition card behind NI-DAQmx's C API
+//! ([`nidaqmx`], exported as a C library by the `nidaqmx-standin` crate).
 //!
-//! All three sample a [`WrenchSource`] (the true wrench at the tool point, N and N·mm) on the
+//! All of them sample a [`WrenchSource`] (the true wrench at the tool point, N and N·mm) on the
 //! shared [`Clock`](rig_core::clock::Clock) at their configured rate, and push it through the same [`SensorModel`]:
 //!
 //! 1. the tool transform's inverse: tool-point wrench → sensor-frame wrench;
@@ -12,7 +13,7 @@
 //!    model's thermistor reading;
 //! 4. gauge saturation: voltages clamp at ±[`GAUGE_RANGE_V`].
 //!
-//! The DAQ mock sends those voltages; the controller and Net F/T mocks, like the real boxes,
+//! The DAQ mock and the NI card send those voltages; the controller and Net F/T mocks, like the real boxes,
 //! apply the calibration themselves (forward, with compensation) and send counts, so what the
 //! rig receives is exactly what a real controller with this calibration would send.
 //!
@@ -22,6 +23,7 @@
 
 pub mod daq;
 pub mod netft;
+pub mod nidaqmx;
 pub mod pty;
 pub mod serial;
 
@@ -343,10 +345,12 @@ impl Faults {
     pub(crate) fn take_corrupt(&self) -> bool {
         Self::take_one(&self.corrupt_next)
     }
-    pub(crate) fn saturated(&self) -> bool {
+    /// Whether an overload is being injected.
+    pub fn saturated(&self) -> bool {
         self.saturate.load(Ordering::Acquire)
     }
-    pub(crate) fn unplugged(&self) -> bool {
+    /// Whether the port has been unplugged.
+    pub fn unplugged(&self) -> bool {
         self.unplug.load(Ordering::Acquire)
     }
 }

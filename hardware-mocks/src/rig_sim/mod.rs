@@ -193,12 +193,21 @@ pub enum SimFtFrontEnd {
     NetFt,
     /// An ATI F/T controller on a serial pty (ASCII records at the configured rate).
     Serial,
+    /// An NI card read through NI-DAQmx: the stand-in library (`nidaqmx-standin`), which the
+    /// rig loads and hands the physics' wrench, the clock and [`SimFt::faults`]. No task of
+    /// the simulated rig runs for it.
+    NiDaqmx,
 }
 
 /// The simulated F/T front end that runs.
 pub enum SimFt {
     NetFt(NetFtMock),
     Serial(SerialControllerMock),
+    /// The NI card lives in the stand-in library; its faults are polled through its hook.
+    NiDaqmx {
+        faults: Arc<crate::nano17::Faults>,
+        stats: Arc<crate::nano17::MockStats>,
+    },
 }
 
 impl SimFt {
@@ -207,18 +216,21 @@ impl SimFt {
         match self {
             SimFt::NetFt(m) => m.faults(),
             SimFt::Serial(m) => m.faults(),
+            SimFt::NiDaqmx { faults, .. } => faults,
         }
     }
     pub fn stats(&self) -> &Arc<crate::nano17::MockStats> {
         match self {
             SimFt::NetFt(m) => m.stats(),
             SimFt::Serial(m) => m.stats(),
+            SimFt::NiDaqmx { stats, .. } => stats,
         }
     }
     async fn shutdown(self) {
         match self {
             SimFt::NetFt(m) => m.shutdown().await,
             SimFt::Serial(m) => m.shutdown().await,
+            SimFt::NiDaqmx { .. } => {}
         }
     }
 }
@@ -345,6 +357,10 @@ impl SimRig {
                     clock.clone(),
                 )?)
             }
+            SimFtFrontEnd::NiDaqmx => SimFt::NiDaqmx {
+                faults: Arc::default(),
+                stats: Arc::default(),
+            },
         };
 
         let camera = match &opts.camera {
@@ -367,6 +383,7 @@ impl SimRig {
             ft = %match &ft {
                 SimFt::NetFt(m) => format!("Net F/T {}", m.addr()),
                 SimFt::Serial(m) => format!("serial {}", m.path().display()),
+                SimFt::NiDaqmx { .. } => "NI-DAQmx stand-in (loaded by the rig)".to_owned(),
             },
             camera = camera.is_some(),
             "simulated rig started"
@@ -394,7 +411,7 @@ impl SimRig {
     pub fn netft_addr(&self) -> Option<SocketAddr> {
         match &self.ft {
             SimFt::NetFt(m) => Some(m.addr()),
-            SimFt::Serial(_) => None,
+            SimFt::Serial(_) | SimFt::NiDaqmx { .. } => None,
         }
     }
 
@@ -402,7 +419,7 @@ impl SimRig {
     pub fn ft_serial_path(&self) -> Option<&std::path::Path> {
         match &self.ft {
             SimFt::Serial(m) => Some(m.path()),
-            SimFt::NetFt(_) => None,
+            SimFt::NetFt(_) | SimFt::NiDaqmx { .. } => None,
         }
     }
 

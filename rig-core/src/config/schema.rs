@@ -331,15 +331,19 @@ pub enum ForceSensorKind {
     Serial,
     /// ATI Net F/T box (UDP RDT).
     Netft,
-    /// Raw gauge voltages from a DAQ, turned into forces with the calibration matrix.
+    /// Raw gauge voltages from a home-built DAQ front end in the project's serial framing
+    /// (`crate::ft::daq`), turned into forces with the calibration matrix.
     Daq,
+    /// ATI's DAQ F/T system: the gauge voltages on an NI data-acquisition card read through
+    /// NI-DAQmx (loaded at run time), turned into forces with the calibration matrix.
+    Nidaqmx,
 }
 
 /// `[force_sensor]`: the F/T sensor (a Nano17 in the paper). Later work extends this section.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ForceSensorConfig {
-    /// `"sim"`, `"serial"`, `"netft"` or `"daq"`.
+    /// `"sim"`, `"serial"`, `"netft"`, `"nidaqmx"` or `"daq"`.
     pub kind: ForceSensorKind,
     /// Serial device (`serial`) or DAQ device name (`daq`), e.g. `/dev/ttyUSB0`.
     #[serde(default)]
@@ -386,9 +390,27 @@ pub struct ForceSensorConfig {
     /// Samples averaged by a tare.
     #[serde(default = "default_tare_samples")]
     pub tare_samples: u32,
-    /// DAQ only: apply the calibration file's temperature compensation when it has one.
+    /// DAQ and NI only: apply the calibration file's temperature compensation when it has one
+    /// (NI: the thermistor is then read as a seventh channel).
     #[serde(default = "default_true")]
     pub temperature_compensation: bool,
+    /// `nidaqmx`: the six gauge channels in NI's physical-channel syntax, in gauge order G0..G5.
+    /// Default [`crate::ft::nidaqmx::DEFAULT_CHANNELS`], `"Dev1/ai0:5"`.
+    #[serde(default)]
+    pub channels: Option<String>,
+    /// `nidaqmx`: the thermistor's channel, read when the calibration file has temperature
+    /// compensation. Default: the input after the last gauge (`"Dev1/ai6"`).
+    #[serde(default)]
+    pub thermistor_channel: Option<String>,
+    /// `nidaqmx`: the inputs' terminal configuration, `"differential"` (default, ATI's wiring),
+    /// `"rse"`, `"nrse"` or `"default"` (the card's).
+    #[serde(default)]
+    pub terminal_config: crate::ft::nidaqmx::TerminalConfig,
+    /// `nidaqmx`: the NI-DAQmx library to load (`libnidaqmx.so`). Default: the environment
+    /// variable `RIG_NIDAQMX_LIBRARY`, else the system's library search (`libnidaqmx.so.1`,
+    /// then `libnidaqmx.so`).
+    #[serde(default)]
+    pub library: Option<PathBuf>,
 }
 
 /// What the F/T front end does with a saturated sample.

@@ -367,6 +367,9 @@ impl RigConfig {
                     v.positive(&format!("force_sensor.max_loads[{i}]"), *x);
                 }
             }
+            if ft.kind == ForceSensorKind::Nidaqmx {
+                Self::validate_nidaqmx(ft, v);
+            }
             if ft.tare_samples < 2 {
                 v.push("force_sensor.tare_samples", "must be at least 2");
             }
@@ -405,6 +408,51 @@ impl RigConfig {
                     ),
                 );
             }
+        }
+    }
+}
+
+impl RigConfig {
+    /// The NI-DAQmx route's keys: the channels, the rate, the calibration file.
+    fn validate_nidaqmx(ft: &super::schema::ForceSensorConfig, v: &mut Validator) {
+        use crate::ft::nidaqmx;
+        let gauges = ft.channels.as_deref().unwrap_or(nidaqmx::DEFAULT_CHANNELS);
+        if let Err(e) = nidaqmx::check_channels(gauges, ft.thermistor_channel.as_deref()) {
+            let key = if e.contains("thermistor") {
+                "force_sensor.thermistor_channel"
+            } else {
+                "force_sensor.channels"
+            };
+            v.push(key, e);
+        }
+        if ft.rate_hz.is_finite() && ft.rate_hz > 0.0 && ft.rate_hz < nidaqmx::MIN_RATE_HZ {
+            v.push(
+                "force_sensor.rate_hz",
+                format!(
+                    "{} Hz is below {} Hz, the least the NI route samples at (ATI's default \
+                     is 1000 Hz)",
+                    ft.rate_hz,
+                    nidaqmx::MIN_RATE_HZ
+                ),
+            );
+        }
+        if ft.calibration_file.is_none() {
+            v.push(
+                "force_sensor.calibration_file",
+                "required when force_sensor.kind is \"nidaqmx\": the rig applies the sensor's \
+                 .cal file to the gauge voltages (it is on the sensor's CD)",
+            );
+        }
+        if ft
+            .library
+            .as_ref()
+            .is_some_and(|p| p.as_os_str().is_empty())
+        {
+            v.push(
+                "force_sensor.library",
+                "is empty: give the path of libnidaqmx.so, or leave the key out to search the \
+                 system's libraries",
+            );
         }
     }
 }

@@ -25,6 +25,11 @@
 //! - **Temperature compensation** (when `BiasSlope`, `GainSlope` and `Thermistor` are present),
 //!   per gauge, with the thermistor reading `T` and its value at calibration `T0`:
 //!   `G' = (G + bs·(T − T0)) / (1 − gs·(T − T0))`.
+//! - **Output range** (`OutputRange`, `OutputBipolar` on `<Calibration>`): the span of the
+//!   sensor's gauge outputs in volts, bipolar by default (`OutputRange="20"`: ±10 V; some
+//!   amplifiers give ±5 V). A DAQ card's input range is set from it ([`OutputRange`]); a gauge
+//!   within 0.5 % of either end counts as saturated ([`OutputRange::saturated_gauges`], ATI's
+//!   convention in its DAQ F/T C library). Without the attributes: ±[`GAUGE_RANGE_V`].
 //!
 //! Errors name the element and attribute (`<Axis Name="Fz"> attribute values: ...`). A singular
 //! matrix is an error; an ill-conditioned one (condition number above
@@ -47,6 +52,43 @@ pub const SINGULAR_LIMIT: f64 = 1e12;
 /// Full-scale input of the DAQ front ends ATI pairs with a Nano17 (±10 V); a gauge at or beyond
 /// this is saturated.
 pub const GAUGE_RANGE_V: f64 = 10.0;
+
+/// ATI's DAQ F/T library treats a gauge reading as saturated beyond this fraction of the
+/// input range.
+pub const SATURATION_FRACTION: f64 = 0.995;
+
+/// The span of the sensor's gauge outputs, volts (`OutputRange` / `OutputBipolar`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct OutputRange {
+    pub min_v: f64,
+    pub max_v: f64,
+}
+
+impl Default for OutputRange {
+    /// ±[`GAUGE_RANGE_V`].
+    fn default() -> Self {
+        Self {
+            min_v: -GAUGE_RANGE_V,
+            max_v: GAUGE_RANGE_V,
+        }
+    }
+}
+
+impl OutputRange {
+    /// Bit i set when gauge i is within 0.5 % of either end of the range, or not finite
+    /// ([`SATURATION_FRACTION`]).
+    pub fn saturated_gauges(&self, gauges_v: &[f64; 6]) -> u8 {
+        let mid = 0.5 * (self.max_v + self.min_v);
+        let half = 0.5 * (self.max_v - self.min_v) * SATURATION_FRACTION;
+        let mut mask = 0u8;
+        for (i, g) in gauges_v.iter().enumerate() {
+            if !g.is_finite() || (g - mid).abs() >= half {
+                mask |= 1 << i;
+            }
+        }
+        mask
+    }
+}
 
 /// Why a calibration file could not be used. Messages name the element and attribute.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -154,6 +196,8 @@ pub struct Calibration {
     /// The file's basic transform (displacement in mm, angles in radians).
     pub basic_transform_mm_rad: [f64; 6],
     pub temperature: Option<TemperatureCompensation>,
+    /// The gauges' output span (`OutputRange`, `OutputBipolar`), ±10 V when not given.
+    pub output_range: OutputRange,
     inverse: Matrix6<f64>,
     conditioning: Conditioning,
 }
@@ -453,6 +497,7 @@ impl Calibration {
         };
 
         let temperature = parse_temperature(cal)?;
+        let output_range = parse_output_range(cal)?;
 
         let conditioning = conditioning_of(&matrix, &max_loads);
         let element = match source {
@@ -484,6 +529,7 @@ impl Calibration {
             max_loads,
             basic_transform_mm_rad: bt,
             temperature,
+            output_range,
             inverse,
             conditioning,
         })
@@ -514,6 +560,7 @@ impl Calibration {
             max_loads,
             basic_transform_mm_rad: [0.0; 6],
             temperature: None,
+            output_range: OutputRange::default(),
             inverse,
             conditioning,
         })
@@ -602,6 +649,43 @@ fn conditioning_of(m: &Matrix6<f64>, max_loads: &[f64; 6]) -> Conditioning {
 
 fn condition_number_of(m: &Matrix6<f64>) -> f64 {
     condition_number(m)
+}
+
+/// `OutputRange` (a positive span in volts) and `OutputBipolar` (`True`: centred on 0 V, the
+/// default; `False`: 0 V up to the span).
+fn parse_output_range(cal: roxmltree::Node) -> Result<OutputRange, CalError> {
+    let Some(text) = cal.attribute("OutputRange") else {
+        return Ok(OutputRange::default());
+    };
+    let span = finite_number(cal, "OutputRange", text)?;
+    if span <= 0.0 {
+        return Err(elem_err(
+            "<Calibration>",
+            format!("attribute `OutputRange` = {text:?} must be a positive span in volts"),
+        ));
+    }
+    let bipolar = match cal.attribute("OutputBipolar").map(str::trim) {
+        None => true,
+        Some(b) if b.eq_ignore_ascii_case("true") => true,
+        Some(b) if b.eq_ignore_ascii_case("false") => false,
+        Some(b) => {
+            return Err(elem_err(
+                "<Calibration>",
+                format!("attribute `OutputBipolar` = {b:?} is not True or False"),
+            ));
+        }
+    };
+    Ok(if bipolar {
+        OutputRange {
+            min_v: -span / 2.0,
+            max_v: span / 2.0,
+        }
+    } else {
+        OutputRange {
+            min_v: 0.0,
+            max_v: span,
+        }
+    })
 }
 
 fn parse_temperature(cal: roxmltree::Node) -> Result<Option<TemperatureCompensation>, CalError> {

@@ -3,7 +3,10 @@
 //! ATI's DAQ route gives the host six raw gauge voltages (plus a thermistor on sensors with
 //! temperature compensation); the host applies the calibration, `F = M · (V − bias)`. A small
 //! microcontroller front end (or the simulated one in `hardware-mocks`) samples the gauges and
-//! sends one frame per sample over a serial port. The framing is ours; here is its spec.
+//! sends one frame per sample over a serial port. The framing is ours; here is its spec. It is
+//! the route for a home-built front end (a microcontroller and an ADC on the amplifier outputs),
+//! for a lab without an NI card; ATI's own DAQ F/T system puts the voltages on an NI card, read
+//! through NI-DAQmx ([`super::nidaqmx`]).
 //!
 //! # Frame (41 bytes, multi-byte fields big-endian)
 //!

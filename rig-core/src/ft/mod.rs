@@ -1,6 +1,6 @@
 //! ATI Nano17 force/torque sensing, without I/O.
 //!
-//! A lab reads its Nano17 in one of three ways, and each has a sans-IO core here; the rig's
+//! A lab reads its Nano17 in one of four ways, and each has a sans-IO core here; the rig's
 //! `force` module owns the ports and sockets and feeds these cores bytes and times.
 //!
 //! - [`serial`]: an ATI F/T controller over RS-232. Commands are ASCII lines ended by CR
@@ -11,9 +11,12 @@
 //! - [`netft`]: an ATI Net F/T box over UDP port 49152 (RDT): an 8-byte request starts or
 //!   stops streaming, every 36-byte record carries a `u32` RDT sequence from which
 //!   [`sequence::SequenceTracker`] counts lost, reordered and duplicated packets exactly.
-//! - [`daq`]: raw gauge voltages (and a thermistor) from a DAQ front end, in this project's own
-//!   framing with a CRC-16 (spec in that module). The rig turns them into a wrench with the
-//!   sensor's calibration file.
+//! - [`nidaqmx`]: ATI's DAQ F/T system, the gauge voltages (and a thermistor) on an NI
+//!   data-acquisition card read through NI-DAQmx: the C API's constants and error codes and
+//!   NI's physical-channel syntax. The rig applies the sensor's calibration file.
+//! - [`daq`]: raw gauge voltages (and a thermistor) from a home-built front end over a serial
+//!   link, in this project's own framing with a CRC-16 (spec in that module), for a lab without
+//!   an NI card. The rig turns them into a wrench with the calibration file, as for NI.
 //!
 //! Shared pieces:
 //!
@@ -39,6 +42,7 @@ pub mod bias;
 pub mod cal;
 pub mod daq;
 pub mod netft;
+pub mod nidaqmx;
 pub mod sequence;
 pub mod serial;
 pub mod transform;

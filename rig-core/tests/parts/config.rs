@@ -419,3 +419,48 @@ fn trajectory_id_parts_are_stable() {
     assert_eq!(format_angle_deg(330.0), "330");
     assert_eq!(format_angle_deg(22.5), "022.5");
 }
+
+#[test]
+fn the_nidaqmx_route_checks_channels_rate_and_calibration() {
+    let ni = |extra: &str| {
+        sim_with(
+            "kind = \"sim\"",
+            &format!("kind = \"nidaqmx\"\ncalibration_file = \"x.cal\"\n{extra}"),
+        )
+    };
+    let c = RigConfig::from_toml_str(&ni("")).unwrap();
+    let fs = c.force_sensor.unwrap();
+    assert_eq!(fs.kind, ForceSensorKind::Nidaqmx);
+    assert_eq!(fs.channels, None);
+    assert_eq!(
+        fs.terminal_config,
+        rig_core::ft::nidaqmx::TerminalConfig::Differential
+    );
+    RigConfig::from_toml_str(&ni(
+        "channels = \"Dev2/ai8:13\"\nthermistor_channel = \"Dev2/ai14\"\nterminal_config = \"rse\"\nlibrary = \"/opt/ni/libnidaqmx.so\"",
+    ))
+    .unwrap();
+    for (extra, key) in [
+        ("channels = \"Dev1/ai0:6\"", "force_sensor.channels"),
+        ("channels = \"Dev1/ao0:5\"", "force_sensor.channels"),
+        (
+            "thermistor_channel = \"Dev1/ai0\"",
+            "force_sensor.thermistor_channel",
+        ),
+        ("library = \"\"", "force_sensor.library"),
+    ] {
+        let e = error_of(&ni(extra));
+        assert!(e.keys().contains(&key.to_owned()), "{extra}: {e}");
+    }
+    let slow = ni("").replacen("rate_hz = 1000.0", "rate_hz = 999.0", 1);
+    let e = error_of(&slow);
+    assert!(e.to_string().contains("below 1000 Hz"), "{e}");
+    assert!(e.keys().contains(&"force_sensor.rate_hz".to_owned()), "{e}");
+    let no_cal = sim_with("kind = \"sim\"", "kind = \"nidaqmx\"");
+    let e = error_of(&no_cal);
+    assert!(
+        e.keys()
+            .contains(&"force_sensor.calibration_file".to_owned()),
+        "{e}"
+    );
+}

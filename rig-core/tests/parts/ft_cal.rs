@@ -278,3 +278,34 @@ impl Rng {
         (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
     }
 }
+
+#[test]
+fn ft_output_range_sets_the_channel_span_and_the_saturation_threshold() {
+    let c = Calibration::parse(USER).unwrap();
+    // OutputRange="20", OutputBipolar="True": ±10 V.
+    assert_eq!((c.output_range.min_v, c.output_range.max_v), (-10.0, 10.0));
+    let five =
+        Calibration::parse(&USER.replace("OutputRange=\"20\"", "OutputRange=\"10\"")).unwrap();
+    assert_eq!(
+        (five.output_range.min_v, five.output_range.max_v),
+        (-5.0, 5.0)
+    );
+    let unipolar =
+        Calibration::parse(&USER.replace("OutputBipolar=\"True\"", "OutputBipolar=\"False\""))
+            .unwrap();
+    assert_eq!(
+        (unipolar.output_range.min_v, unipolar.output_range.max_v),
+        (0.0, 20.0)
+    );
+    // ATI: saturated at 99.5 % of the range (±4.975 V on a ±5 V sensor).
+    let r = five.output_range;
+    assert_eq!(r.saturated_gauges(&[4.97, -4.97, 0.0, 0.0, 0.0, 0.0]), 0);
+    assert_eq!(
+        r.saturated_gauges(&[4.98, -4.98, 0.0, 0.0, f64::NAN, 0.0]),
+        0b1_0011
+    );
+    let e = err(&USER.replace("OutputRange=\"20\"", "OutputRange=\"-3\""));
+    assert!(e.contains("OutputRange"), "{e}");
+    let e = err(&USER.replace("OutputBipolar=\"True\"", "OutputBipolar=\"maybe\""));
+    assert!(e.contains("OutputBipolar"), "{e}");
+}
