@@ -347,7 +347,8 @@ async fn ft_nidaqmx_counts_an_injected_overrun_exactly_and_keeps_the_indices() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ft_nidaqmx_device_removal_trips_the_supervisor_within_one_stall_period() {
-    use rig::run::streams::{StreamSettings, Streams, Trip};
+    use rig::run::events::{StreamSettings, Trip};
+    use rig::run::streams::Streams;
     const DEV: &str = "NiC";
     let clock = Clock::scaled(10.0);
     let ni = Standin::load();
