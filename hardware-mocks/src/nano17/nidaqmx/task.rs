@@ -23,6 +23,15 @@ fn invalid_task(handle: u64) -> Fail {
     Fail::new(errors::INVALID_TASK, format!("Task Handle: {handle:#x}"))
 }
 
+impl Inner {
+    /// The task behind `handle`, or NI's invalid-task error.
+    fn task_mut(&mut self, handle: u64) -> Result<&mut Task, Fail> {
+        self.tasks
+            .get_mut(&handle)
+            .ok_or_else(|| invalid_task(handle))
+    }
+}
+
 impl System {
     /// `DAQmxCreateTask`.
     pub fn create_task(&self, name: &str) -> Result<u64, Fail> {
@@ -146,10 +155,7 @@ impl System {
         samps_per_chan: u64,
     ) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g
-            .tasks
-            .get_mut(&handle)
-            .ok_or_else(|| invalid_task(handle))?;
+        let task = g.task_mut(handle)?;
         let nch = task.channels.len().max(1) as f64;
         let bad = |what: String| Fail::new(errors::INVALID_ATTRIBUTE_VALUE, what);
         if !(source.is_empty() || source == "OnboardClock") {
@@ -189,10 +195,7 @@ impl System {
     /// `DAQmxCfgInputBuffer`.
     pub fn cfg_input_buffer(&self, handle: u64, samps_per_chan: u32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g
-            .tasks
-            .get_mut(&handle)
-            .ok_or_else(|| invalid_task(handle))?;
+        let task = g.task_mut(handle)?;
         task.buffer = Some(u64::from(samps_per_chan.max(2)));
         Ok(())
     }
@@ -200,10 +203,7 @@ impl System {
     /// `DAQmxSetReadOverWrite`.
     pub fn set_read_overwrite(&self, handle: u64, mode: i32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g
-            .tasks
-            .get_mut(&handle)
-            .ok_or_else(|| invalid_task(handle))?;
+        let task = g.task_mut(handle)?;
         task.overwrite = match mode {
             val::OVERWRITE_UNREAD_SAMPS => true,
             val::DO_NOT_OVERWRITE_UNREAD_SAMPS => false,
@@ -220,10 +220,7 @@ impl System {
     /// `DAQmxSetReadRelativeTo`.
     pub fn set_read_relative_to(&self, handle: u64, to: i32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g
-            .tasks
-            .get_mut(&handle)
-            .ok_or_else(|| invalid_task(handle))?;
+        let task = g.task_mut(handle)?;
         if ![val::CURR_READ_POS, val::FIRST_SAMPLE, val::MOST_RECENT_SAMP].contains(&to) {
             return Err(Fail::new(
                 errors::INVALID_ATTRIBUTE_VALUE,
@@ -237,10 +234,7 @@ impl System {
     /// `DAQmxSetReadOffset`.
     pub fn set_read_offset(&self, handle: u64, offset: i32) -> Result<(), Fail> {
         let mut g = self.lock();
-        let task = g
-            .tasks
-            .get_mut(&handle)
-            .ok_or_else(|| invalid_task(handle))?;
+        let task = g.task_mut(handle)?;
         task.offset = offset;
         Ok(())
     }
