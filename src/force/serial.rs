@@ -21,7 +21,7 @@ use tokio::sync::mpsc::UnboundedReceiver;
 
 use super::conditioning::{Conditioner, FrontEndSettings};
 use super::error::FtError;
-use super::stream::{Control, FtStats, FtStream, Sink};
+use super::stream::{Control, FtStats, FtStream, Sink, start_reader};
 
 /// How long the controller may take to answer a command.
 pub const COMMAND_TIMEOUT: Duration = Duration::from_secs(1);
@@ -65,48 +65,36 @@ pub async fn open(
             reason: e.to_string(),
         })?;
     let (stream, sink, ctl, done) = FtStream::channel(format!("serial {}", opts.port));
-    let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
-    std::thread::Builder::new()
-        .name("ft-serial".into())
-        .spawn(move || {
-            let mut reader = Reader {
-                port,
-                opts,
-                parser: SerialParser::new(
-                    OutputMode::Ascii,
-                    plausible_counts(
-                        &settings.max_loads,
-                        settings.counts_per_force,
-                        settings.counts_per_torque,
-                        1.5,
-                    ),
+    let setup = move || {
+        let mut reader = Reader {
+            port,
+            opts,
+            parser: SerialParser::new(
+                OutputMode::Ascii,
+                plausible_counts(
+                    &settings.max_loads,
+                    settings.counts_per_force,
+                    settings.counts_per_torque,
+                    1.5,
                 ),
-                cond: settings.counts_conditioner(),
-                sink,
-                clock,
-                buf: vec![0u8; 8192],
-                seq: 0,
-            };
-            match reader.configure() {
-                Ok(()) => {
-                    let _ = ready_tx.send(Ok(()));
-                    reader.stream(ctl);
-                }
-                Err(e) => {
-                    let _ = ready_tx.send(Err(e));
-                }
-            }
-            let _ = done.send(());
-        })
-        .map_err(|e| FtError::Io {
-            device: "serial".into(),
-            reason: e.to_string(),
-        })?;
-    match ready_rx.await {
-        Ok(Ok(())) => Ok(stream),
-        Ok(Err(e)) => Err(e),
-        Err(_) => Err(FtError::Stopped),
-    }
+            ),
+            cond: settings.counts_conditioner(),
+            sink,
+            clock,
+            buf: vec![0u8; 8192],
+            seq: 0,
+        };
+        reader.configure().map(|()| reader)
+    };
+    start_reader(
+        stream,
+        done,
+        "ft-serial",
+        "serial",
+        setup,
+        move |mut r: Reader| r.stream(ctl),
+    )
+    .await
 }
 
 struct Reader {

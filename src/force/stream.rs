@@ -333,3 +333,40 @@ impl Drop for FtStream {
         let _ = self.ctl.send(Control::Stop);
     }
 }
+/// Runs a front end's reader on a thread of its own (named `thread`): `setup` (open and
+/// configure the device) and then `run` with what it gave, `done` fired when the thread ends.
+/// Returns `stream` once `setup` succeeded, or `setup`'s error; `device` names the front end
+/// if the thread cannot start.
+pub(crate) async fn start_reader<S>(
+    stream: FtStream,
+    done: oneshot::Sender<()>,
+    thread: &str,
+    device: &str,
+    setup: impl FnOnce() -> Result<S, FtError> + Send + 'static,
+    run: impl FnOnce(S) + Send + 'static,
+) -> Result<FtStream, FtError> {
+    let (ready_tx, ready_rx) = oneshot::channel();
+    std::thread::Builder::new()
+        .name(thread.into())
+        .spawn(move || {
+            match setup() {
+                Ok(s) => {
+                    let _ = ready_tx.send(Ok(()));
+                    run(s);
+                }
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e));
+                }
+            }
+            let _ = done.send(());
+        })
+        .map_err(|e| FtError::Io {
+            device: device.into(),
+            reason: e.to_string(),
+        })?;
+    match ready_rx.await {
+        Ok(Ok(())) => Ok(stream),
+        Ok(Err(e)) => Err(e),
+        Err(_) => Err(FtError::Stopped),
+    }
+}

@@ -41,7 +41,7 @@ pub use reader::TaskSpec;
 
 use super::conditioning::FrontEndSettings;
 use super::error::FtError;
-use super::stream::FtStream;
+use super::stream::{FtStream, start_reader};
 
 /// The task a `[force_sensor]` section with `kind = "nidaqmx"` describes.
 pub fn task_spec(
@@ -107,28 +107,13 @@ pub async fn open_with(
         api.origin
     );
     let (stream, sink, ctl, done) = FtStream::channel(description);
-    let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
-    std::thread::Builder::new()
-        .name("ft-nidaqmx".into())
-        .spawn(move || {
-            match reader::Task::start(api, &spec) {
-                Ok(task) => {
-                    let _ = ready_tx.send(Ok(()));
-                    reader::Reader::new(api, task, spec, cond, sink, clock).run(ctl);
-                }
-                Err(e) => {
-                    let _ = ready_tx.send(Err(e));
-                }
-            }
-            let _ = done.send(());
-        })
-        .map_err(|e| FtError::Io {
-            device: "NI-DAQmx".into(),
-            reason: e.to_string(),
-        })?;
-    match ready_rx.await {
-        Ok(Ok(())) => Ok(stream),
-        Ok(Err(e)) => Err(e),
-        Err(_) => Err(FtError::Stopped),
-    }
+    start_reader(
+        stream,
+        done,
+        "ft-nidaqmx",
+        "NI-DAQmx",
+        move || reader::Task::start(api, &spec).map(|task| (task, spec)),
+        move |(task, spec)| reader::Reader::new(api, task, spec, cond, sink, clock).run(ctl),
+    )
+    .await
 }
