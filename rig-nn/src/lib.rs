@@ -13,7 +13,7 @@
 //!   discriminator), of a [`GanShape`]; their losses [`lsgan`] and [`l1`].
 //! - [`Inception`], the Inception-v3 of FID and KID, with the TensorFlow graph's weights.
 //!
-//! Where they compute and how they start ([`device`] module): [`device()`] is the backend the
+//! Where they compute and how they start ([`device`](mod@device) module): [`device()`] is the backend the
 //! cargo features select (flex on the CPU; CUDA with `gpu`; wgpu with `wgpu`, Vulkan with
 //! `vulkan`), [`build_networks`] and [`init_params`] draw a network's initial weights from its
 //! seed alone, and [`on_pool`] runs a training loop on rayon's pool.

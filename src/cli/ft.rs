@@ -56,7 +56,7 @@ pub struct CalibrationArgs {
 
 #[derive(Debug, Args)]
 pub struct LiveArgs {
-    /// Rig config (TOML) with a [force_sensor] section. Default: ./rig.toml if present, else the
+    /// Rig config (TOML) with a `[force_sensor]` section. Default: ./rig.toml if present, else the
     /// built-in simulated rig.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,

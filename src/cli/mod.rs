@@ -3,8 +3,8 @@
 //! [`Cli`] is one clap-derived [`Command`] enum with one variant per subcommand; each variant's
 //! args struct and handler live in the subcommand's own file here (`plan.rs`: `rig plan` and
 //! `rig indenters`; `run.rs`, `ft.rs`, `sim.rs`, `dataset.rs`, `train.rs` (`train` and `eval`),
-//! `demo.rs`, `reproduce.rs`, `predict.rs`, and `bench/`), and [`run`] dispatches. To add a subcommand: a file with its
-//! `Args` and a handler, a variant, and an arm in [`run`]. Handlers return `anyhow::Result`
+//! `demo.rs`, `reproduce.rs`, `predict.rs`, and `bench/`), and [`run()`] dispatches. To add a subcommand: a file with its
+//! `Args` and a handler, a variant, and an arm in [`run()`]. Handlers return `anyhow::Result`
 //! with operator-facing messages; `main` prints them and exits with status 1 (clap itself exits
 //! with 2 on usage errors). Handlers that need async I/O build their own tokio runtime, so the
 //! synchronous ones stay simple.
@@ -37,7 +37,7 @@ pub struct Cli {
     pub command: Command,
 }
 
-/// The subcommands. Add new ones here (one variant, its file's args struct, one arm in [`run`]).
+/// The subcommands. Add new ones here (one variant, its file's args struct, one arm in [`run()`]).
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Build the contact plan for an indenter and check every waypoint against the safety

@@ -21,7 +21,7 @@ pub struct RunArgs {
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Output directory of the recording (one MCAP file per trajectory and manifest.json).
-    /// Default: runs/<indenter>-<sensor id>.
+    /// Default: `runs/<indenter>-<sensor id>`.
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Continue the recording in the output directory: skip complete trajectories, redo the rest.

@@ -47,7 +47,7 @@ pub struct ForcesArgs {
     /// Every depth of the plan (default: its deepest only, where the forces peak).
     #[arg(long)]
     pub all_depths: bool,
-    /// Rig config whose [elastomer], [plan] and [safety] to use (default as for `rig sim
+    /// Rig config whose `[elastomer]`, `[plan]` and `[safety]` to use (default as for `rig sim
     /// render`).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
@@ -74,7 +74,7 @@ pub struct RenderArgs {
     /// Contact point on the gel, mm, e.g. `0,0` (the default, the gel centre).
     #[arg(long, value_name = "X,Y", default_value = "0,0")]
     pub at: String,
-    /// Rig config (TOML) whose [elastomer] and [optics] to use. Default: ./rig.toml if present,
+    /// Rig config (TOML) whose `[elastomer]` and `[optics]` to use. Default: ./rig.toml if present,
     /// else the built-in simulated source sensor.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,

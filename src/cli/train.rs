@@ -26,7 +26,7 @@ pub enum TrainCommand {
 
 #[derive(Debug, Args)]
 pub struct Common {
-    /// Trainer settings (TOML with [data], [translate], [force]); paper defaults otherwise.
+    /// Trainer settings (TOML with `[data]`, `[translate]`, `[force]`); paper defaults otherwise.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Network input size, WIDTHxHEIGHT (multiples of 4).

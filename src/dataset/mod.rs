@@ -35,8 +35,8 @@
 //! trajectories only.
 
 //!
-//! The files: [`check`] reads and judges, [`truth`] compares with the simulator's truth,
-//! [`report`] renders, [`export`] writes a dataset out in other tools' layouts (`rig dataset
+//! The files: [`check`] reads and judges, `truth` compares with the simulator's truth,
+//! `report` renders, [`export`] writes a dataset out in other tools' layouts (`rig dataset
 //! export`); the command is `crate::cli::dataset`. Both read recordings of either format
 //! (protobuf, or the first JSON one) through [`crate::record::reader`].
 

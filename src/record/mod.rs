@@ -12,7 +12,7 @@
 //!   protobuf files and the first format's JSON ones ([`legacy`]).
 //! - [`manifest`]: `manifest.json` (config, calibration, indenter, sensor, software version and
 //!   every trajectory's status), written atomically ([`crate::durable`]).
-//! - [`resume`]: which planned trajectories are complete and which must be redone.
+//! - [`resume`](mod@resume): which planned trajectories are complete and which must be redone.
 //! - [`pipeline`]: [`Recorder`], the tokio-facing bounded queue in front of a blocking writer.
 //! - [`synthetic`]: generated trajectories (small PNGs, smooth wrench and pose) for tests.
 //!

@@ -6,7 +6,7 @@
 //! Why by hand: the rig writes ten small message types; `prost` would need `protoc` (or a
 //! vendored descriptor) to produce the FileDescriptorSet, and a generated-code crate for ten
 //! messages costs more build time than the two hundred lines here. The descriptors below are
-//! written from the schemas' published field numbers; [`tests`] check them against the encoder
+//! written from the schemas' published field numbers; the tests below check them against the encoder
 //! and `tests/python` decodes recordings with the Python `protobuf` runtime, which validates the
 //! descriptors independently.
 //!

@@ -6,7 +6,7 @@
 //! writes the MCAP summary and footer, `fsync`s the file, renames it to `<id>.mcap` and `fsync`s
 //! the directory so the rename itself survives a power cut. [`TrajectoryWriter::abort`] (and a
 //! drop without `finish`) removes the partial. A crash can therefore leave a partial behind, never
-//! a half-written file under the final name; resume ([`super::resume`]) removes stale partials.
+//! a half-written file under the final name; resume ([`super::resume`](mod@super::resume)) removes stale partials.
 //! Reading a file back is [`super::reader`].
 //!
 //! # The file's layout
@@ -21,7 +21,7 @@
 //!
 //! The `mcap` crate (0.24) leaves its writer without its inner stream when an I/O error
 //! interrupts a chunk, and its `Drop` (which finishes the file) then panics. The writer here
-//! never lets the crate see an error: the crate writes into a [`Sink`] that records the first
+//! never lets the crate see an error: the crate writes into a `Sink` that records the first
 //! I/O error of the file and from then on swallows every write and seek (they succeed and go
 //! nowhere), so the crate's state stays consistent and its `Drop` finishes into the void.
 //! [`TrajectoryWriter`] checks the sink after every call and fails the trajectory with the

@@ -244,7 +244,7 @@ impl Dashboard {
         Ok(after_colon(&self.command("safetystatus").await?))
     }
 
-    /// The program state line ("PLAYING transforce_rig", "STOPPED <unnamed>").
+    /// The program state line (`PLAYING transforce_rig`, `STOPPED <unnamed>`).
     pub async fn program_state(&mut self) -> Result<String, DashboardError> {
         self.command("programState").await
     }

@@ -1,7 +1,7 @@
 //! What a run's streams carry, count and stop on, shared by the streams' tasks
 //! ([`super::streams`]) and the safety supervisor ([`super::safety`]): the [`Trip`] that stops
 //! motion, the [`Event`]s forwarded to the recording, the [`StreamCounters`], the
-//! [`StreamSettings`], and the hand-over into the collector's channel ([`forward`]).
+//! [`StreamSettings`], and the hand-over into the collector's channel (`forward`).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;

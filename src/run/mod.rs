@@ -19,7 +19,7 @@
 //!   are readied for the file on a dedicated thread (an MJPEG camera's JPEG kept as sent, raw
 //!   pixels encoded as PNG);
 //! - the **collector** ([`collector`]) pairs every frame with the wrench interpolated at its
-//!   time and queues the open trajectory's records on the [`Recorder`], whose writer thread
+//!   time and queues the open trajectory's records on the [`Recorder`](crate::record::Recorder), whose writer thread
 //!   writes the MCAP file. Every queue is bounded: a slow disk shows as back-pressure.
 //!
 //! # Time
@@ -34,7 +34,7 @@
 //!
 //! # Safety
 //!
-//! The motion runs under watch of the streams' trips ([`Trip`]): a force above
+//! The motion runs under watch of the streams' trips ([`Trip`](events::Trip)): a force above
 //! `safety.max_force_n`, a saturated sensor, an F/T or camera stream that stalls or ends. A trip
 //! stops the arm (`stopl`), retracts it straight up along the surface normal to the approach
 //! height (when the envelope allows and the robot can move), and fails the trajectory with the
@@ -67,11 +67,11 @@
 //!
 //! # Files
 //!
-//! [`run`] below tells the story; the chapters are [`options`] (what was asked, checked against
-//! the plan), [`output`] (the output directory and `--resume`), [`devices`] (the rig, its
-//! clock, the recorder and the robot), [`pipeline`] (streams, collector, governor, injector),
-//! [`trajectory`] (one trajectory, its failure and the recovery), [`budget`] (the disk space
-//! it needs, checked before anything connects and before each trajectory) and [`summary`]
+//! [`run()`] below tells the story; the chapters are `options` (what was asked, checked against
+//! the plan), `output` (the output directory and `--resume`), `devices` (the rig, its
+//! clock, the recorder and the robot), `pipeline` (streams, collector, governor, injector),
+//! `trajectory` (one trajectory, its failure and the recovery), [`budget`] (the disk space
+//! it needs, checked before anything connects and before each trajectory) and `summary`
 //! (the report).
 
 pub mod budget;

@@ -297,7 +297,7 @@ pub fn load_labelled(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Re
 }
 
 /// [`load_labelled`] with each recorded frame first magnified `zoom` times about its centre
-/// ([`images::zoom_about_centre`]; 1: as recorded). The translator's source images take
+/// (`images::zoom_about_centre`; 1: as recorded). The translator's source images take
 /// this step when the two sensors' marker pitches are matched ([`super::pitch::pitch_zoom`]).
 /// A prepared dataset is already at the network's size and is loaded as it is.
 pub fn load_labelled_zoomed(

@@ -29,7 +29,8 @@ pub struct PhysicsConfig {
     pub viscoelastic: bool,
     /// Samples kept in the ring buffer (at least 2).
     pub history: usize,
-    /// Step on demand too: a [`WrenchSource::wrench_at`] or [`ContactPhysics::field_at`] for a
+    /// Step on demand too: a [`WrenchSource::wrench_at`](crate::truth::WrenchSource::wrench_at) or
+    /// [`ContactPhysics::field_at`](super::ContactPhysics::field_at) for a
     /// time past the newest step first steps to the pose source's current pose, inline. The
     /// F/T mock and the camera then see the contact at their own sample time rather than up to
     /// a physics period (plus the task's wake-up delay, many ms on a scaled clock) late. The

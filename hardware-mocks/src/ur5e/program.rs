@@ -1,5 +1,5 @@
 //! The controller's side of the running program: one interpreter cycle per controller tick
-//! ([`Controller::run_program_cycle`]), and the [`Robot`] the interpreter acts on (registers,
+//! (`Controller::run_program_cycle`), and the [`Robot`] the interpreter acts on (registers,
 //! motion, TCP offset, watchdogs), implemented by the [`Controller`].
 //!
 //! Motion commands (URScript manual, "Module motion"): `movel` starts a new straight-line move

@@ -1,5 +1,5 @@
 //! Why a configuration could not be used ([`ConfigError`]), and where in the text a TOML parse
-//! error is: the parser gives a byte span and a message, [`locate`] turns them into the key path
+//! error is: the parser gives a byte span and a message, `locate` turns them into the key path
 //! and line an operator can find.
 
 use std::path::PathBuf;

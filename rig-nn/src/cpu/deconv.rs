@@ -176,7 +176,7 @@ impl<C: CheckpointStrategy> TrainDeconv for Autodiff<Flex, C> {
     }
 }
 
-/// `layer.forward(x)`: on [`super::conv`]'s kernels where the layer and the device are covered
+/// `layer.forward(x)`: on the convolution's kernels ([`super::conv2d`]) where the layer and the device are covered
 /// (module docs), else burn's.
 pub fn conv_transpose2d(layer: &ConvTranspose2d, x: Tensor<4>) -> Tensor<4> {
     let [k, kw] = layer.kernel_size;

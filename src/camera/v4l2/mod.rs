@@ -22,7 +22,7 @@
 //!   and the newest frame is always the one delivered next; a slow consumer loses frames in the
 //!   rig's queue (counted), not in the driver.
 //!
-//! The real layer over the `v4l` crate (mmap buffers) is [`device`] (cargo feature `v4l`).
+//! The real layer over the `v4l` crate (mmap buffers) is `device` (cargo feature `v4l`).
 
 #[cfg(feature = "v4l")]
 pub mod device;
@@ -248,7 +248,7 @@ pub struct RawFrame {
 }
 
 /// The device operations capture needs; the `v4l` crate implements them for real hardware
-/// ([`device`]), tests with a fake.
+/// (`device`), tests with a fake.
 pub trait DeviceLayer: Send + 'static {
     /// Every pixel format, size and rate the device offers.
     fn modes(&mut self) -> std::io::Result<Vec<OfferedMode>>;

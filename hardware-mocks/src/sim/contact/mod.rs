@@ -2,7 +2,7 @@
 //!
 //! # Normal models ([`ContactModel`])
 //!
-//! All models take the material from [`ElastomerConfig`] (`E`, `ν`, thickness `h`, `μ`) with
+//! All models take the material from [`ElastomerConfig`](rig_core::config::ElastomerConfig) (`E`, `ν`, thickness `h`, `μ`) with
 //! `E* = E / (1 − ν²)`, and the indenter's face as a gap field sampled at the cell centres of a
 //! regular grid over the gel (cell size [`Effects::cell_mm`](super::Effects::cell_mm), default
 //! [`DEFAULT_CELL_MM`]). Contact is displacement-controlled: the depth is given, the force

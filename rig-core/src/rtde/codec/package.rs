@@ -26,7 +26,7 @@ pub enum ClientPackage {
     Start,
     /// 'P'
     Pause,
-    /// 'U': input values for a recipe; the payload is encoded by [`encode_values`].
+    /// 'U': input values for a recipe; the payload is encoded by [`encode_values`](super::value::encode_values).
     Data { recipe_id: u8, payload: Bytes },
     /// 'M': a client may send messages to the controller log.
     TextMessage(TextMessage),
