@@ -13,8 +13,9 @@
 
 use std::path::Path;
 
-use crate::record::manifest::Manifest;
 use anyhow::Context;
+
+use crate::record::manifest::Manifest;
 
 /// The marker pitch of the recordings in `dir` as a fraction of the frame's width (spacing,
 /// mm, over the width the camera sees, mm), from the rig config in the first run's manifest;
