@@ -54,12 +54,22 @@ pub enum Trip {
     OutsideEnvelope { tcp_mm: [f64; 3] },
     /// The controller reports a non-finite TCP pose.
     NonFinitePose,
+    /// No F/T sensor: the UR5e's flange sensor read |F| past `safety.max_force_n` less its
+    /// accuracy margin ([`super::flange`]).
+    FlangeForceLimit {
+        force_n: f64,
+        threshold_n: f64,
+        limit_n: f64,
+    },
 }
 
 impl Trip {
     /// A lost or stalled stream cannot be recorded from: the run stops.
     pub fn is_fatal(&self) -> bool {
-        !matches!(self, Trip::ForceLimit { .. } | Trip::Saturated { .. })
+        !matches!(
+            self,
+            Trip::ForceLimit { .. } | Trip::Saturated { .. } | Trip::FlangeForceLimit { .. }
+        )
     }
 }
 
@@ -99,6 +109,17 @@ impl std::fmt::Display for Trip {
                 f,
                 "the camera stalled: no frame for {after_ms:.0} ms; check its USB cable, or \
                  whether another program holds it"
+            ),
+            Trip::FlangeForceLimit {
+                force_n,
+                threshold_n,
+                limit_n,
+            } => write!(
+                f,
+                "force limit (UR5e flange sensor): |F| = {force_n:.2} N is past {threshold_n:.2} \
+                 N, safety.max_force_n = {limit_n} N less the flange sensor's accuracy; the \
+                 robot was stopped and retracted. Check the plan's depths and the indenter \
+                 (with no [force_sensor] the arm's own sensor is the force watch)"
             ),
         }
     }
@@ -216,13 +237,16 @@ pub struct StreamSettings {
     /// A reported TCP position outside it trips (checked on every robot state the supervisor
     /// sees; `None`: not checked).
     pub envelope: Option<rig_core::config::Envelope>,
+    /// No F/T sensor: the force check on the UR5e's flange readings (every robot state).
+    pub flange: Option<super::flange::FlangeGuard>,
 }
 
 /// The running streams.
 pub struct Streams {
     shared: Arc<safety::Shared>,
     trips_in: mpsc::UnboundedSender<Trip>,
-    tare: TareHandle,
+    /// `None` without an F/T sensor.
+    tare: Option<TareHandle>,
     tasks: Vec<JoinHandle<()>>,
     encoder: Option<std::thread::JoinHandle<()>>,
     stop: Arc<AtomicBool>,
@@ -265,10 +289,11 @@ fn note_backpressure(counters: &StreamCounters) {
 }
 
 impl Streams {
-    /// Starts the supervisor on `ft` and the camera task on `camera`. Events go to `out` (the
-    /// collector's input). With `safety`, the supervisor owns the robot's heartbeat and stop.
+    /// Starts the supervisor on `ft` (none: no F/T sensor, forces are watched on the flange,
+    /// `settings.flange`) and the camera task on `camera`. Events go to `out` (the collector's
+    /// input). With `safety`, the supervisor owns the robot's heartbeat and stop.
     pub fn start(
-        ft: FtStream,
+        ft: Option<FtStream>,
         camera: Option<Box<dyn FrameSource>>,
         clock: Clock,
         settings: StreamSettings,
@@ -293,7 +318,7 @@ impl Streams {
             frozen: watch::channel(false).0,
         });
         let stop = Arc::new(AtomicBool::new(false));
-        let tare = ft.tare_handle();
+        let tare = ft.as_ref().map(FtStream::tare_handle);
         let (trips_in, trips_rx) = mpsc::unbounded_channel();
         let mut tasks: Vec<JoinHandle<()>> = safety::spawn(
             ft,
@@ -415,7 +440,12 @@ impl Streams {
 
     /// Tare the F/T over the next `samples` samples (the indenter must be off the gel).
     pub async fn tare(&self, samples: u64) -> Result<TareReport, crate::force::FtError> {
-        self.tare.tare(samples).await
+        match &self.tare {
+            Some(t) => t.tare(samples).await,
+            None => Err(crate::force::FtError::Config(
+                "the config has no [force_sensor]: there is no F/T sensor to tare".into(),
+            )),
+        }
     }
 
     /// Stops every task and the encoder.
@@ -567,7 +597,7 @@ mod tests {
         let (ft, sink, _ctl, _done) = FtStream::channel("test".into());
         let (out_tx, mut out_rx) = mpsc::channel(64);
         let streams = Streams::start(
-            ft,
+            Some(ft),
             None,
             Clock::system(),
             StreamSettings {
@@ -575,6 +605,7 @@ mod tests {
                 ft_stall: Duration::from_secs(60),
                 camera_stall: Duration::from_secs(60),
                 envelope: None,
+                flange: None,
             },
             out_tx,
             None,
