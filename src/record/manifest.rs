@@ -157,6 +157,16 @@ impl Manifest {
         self.trajectories.last_mut().expect("just pushed")
     }
 
+    /// Whether the recording holds forces: false for a sensor recorded without an F/T sensor
+    /// (its rig config's `force_sensor` is `null`: images, TCP poses and stage labels only). A
+    /// manifest whose config does not say (older formats, synthetic sets) counts as with.
+    pub fn records_forces(&self) -> bool {
+        !matches!(
+            self.config.get("force_sensor"),
+            Some(serde_json::Value::Null)
+        )
+    }
+
     /// Read `dir/manifest.json`.
     pub fn load(dir: &Path) -> Result<Self, String> {
         let path = dir.join(MANIFEST_NAME);

@@ -18,7 +18,9 @@
 //! - [`CollectCmd::Abort`]: stop writing at once (the orchestrator aborts the file).
 //!
 //! Every frame written gets exactly one paired record (and, on the simulated rig, one truth
-//! record), so the file's counts say at once whether anything went missing.
+//! record), so the file's counts say at once whether anything went missing. Without an F/T
+//! sensor (a target recorded for its images) there is nothing to pair: frames, poses and
+//! stages are written, and no paired record.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -90,6 +92,9 @@ pub struct CollectorSettings {
     /// Whether frames come: the end of a trajectory then also waits for a frame captured
     /// after it, so every frame captured during it has arrived.
     pub camera: bool,
+    /// Whether wrench samples come (an F/T sensor is fitted). Without, frames are written
+    /// unpaired (no paired records) and the end waits for the frames only.
+    pub wrench: bool,
     /// The estimator mapping the controller's RTDE `timestamp` onto the host clock.
     pub rtde_clock: EstimatorConfig,
 }
@@ -325,11 +330,13 @@ impl Collector {
                 }
             }
             Event::Frame(f) => {
-                self.pairer.push_frame(FrameIn {
-                    seq: f.seq,
-                    stamp: DeviceStamp::Nanos(f.stamp_ns),
-                    host_rx_ns: f.host_rx_ns,
-                });
+                if self.settings.wrench {
+                    self.pairer.push_frame(FrameIn {
+                        seq: f.seq,
+                        stamp: DeviceStamp::Nanos(f.stamp_ns),
+                        host_rx_ns: f.host_rx_ns,
+                    });
+                }
                 self.newest_frame_ns = self.newest_frame_ns.max(f.stamp_ns);
                 // A frame belongs to the trajectory by its capture time, however late it
                 // arrives (the simulated camera renders after the fact).
@@ -347,7 +354,9 @@ impl Collector {
                         r.stats.frames += 1;
                         r.stats.first_frame_ns.get_or_insert(f.host_rx_ns);
                         r.stats.last_frame_ns = Some(f.host_rx_ns);
-                        r.waiting.insert(seq, f.truth.map(|(_, w)| w));
+                        if self.settings.wrench {
+                            r.waiting.insert(seq, f.truth.map(|(_, w)| w));
+                        }
                     }
                     let truth = f.truth;
                     self.write(Record::Frame {
@@ -404,7 +413,7 @@ impl Collector {
     fn end_reached(&self) -> bool {
         self.cur.as_ref().is_some_and(|r| {
             r.end.as_ref().is_some_and(|(t_end, _)| {
-                self.newest_wrench_ns >= t_end + self.settings.grace_ns
+                (!self.settings.wrench || self.newest_wrench_ns >= t_end + self.settings.grace_ns)
                     && (!self.settings.camera || self.newest_frame_ns > *t_end)
             })
         })

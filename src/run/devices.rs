@@ -18,9 +18,11 @@ use crate::simrig::{self, RunningSimRig, SimFaultKind};
 
 /// The F/T stream and the camera of the rig.
 pub(super) struct Devices {
-    pub ft: FtStream,
+    /// `None`: no `[force_sensor]` (a target recorded for its images; forces are watched on the
+    /// UR5e's flange sensor).
+    pub ft: Option<FtStream>,
     pub camera: Option<Box<dyn FrameSource>>,
-    /// The F/T's full range and front end, for the manifest.
+    /// The F/T's full range and front end, for the manifest (`null` without an F/T sensor).
     pub calibration: serde_json::Value,
     pub ft_rate_hz: f64,
 }
@@ -50,11 +52,15 @@ fn calibration_differences(recorded: &serde_json::Value, now: &serde_json::Value
     }
 }
 
-async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<Devices> {
-    let fs = config.force_sensor.as_ref().context(
-        "the rig config has no [force_sensor]: `rig run` records forces; add the section (see \
-         rig-configs/lab-example.toml)",
-    )?;
+/// The lab's F/T stream, its calibration for the manifest and its rate; `None` without a
+/// `[force_sensor]` (the run checked that the role allows it: [`super::flange::guard`]).
+async fn open_lab_ft(
+    config: &RigConfig,
+    clock: &Clock,
+) -> anyhow::Result<Option<(FtStream, serde_json::Value, f64)>> {
+    let Some(fs) = config.force_sensor.as_ref() else {
+        return Ok(None);
+    };
     if fs.kind == ForceSensorKind::Sim {
         bail!(
             "force_sensor.kind = \"sim\" needs the simulated rig (robot.simulated = true): a lab \
@@ -63,6 +69,15 @@ async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<D
     }
     let settings = FrontEndSettings::from_config(fs)?;
     let ft = force::open(fs, clock.clone()).await?;
+    let calibration = calibration_json(&settings, &ft.description);
+    Ok(Some((ft, calibration, settings.rate_hz)))
+}
+
+/// Nominal F/T rate when none is fitted (nothing is paced by it), Hz.
+const NO_FT_RATE_HZ: f64 = 1000.0;
+
+async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<Devices> {
+    let ft = open_lab_ft(config, clock).await?;
     let camera: Option<Box<dyn FrameSource>> = match &config.camera {
         None => None,
         Some(c) if c.kind == CameraKind::Sim => {
@@ -70,11 +85,15 @@ async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<D
         }
         Some(c) => Some(open_v4l2(c, clock)?),
     };
+    let (ft, calibration, ft_rate_hz) = match ft {
+        Some((ft, cal, hz)) => (Some(ft), cal, hz),
+        None => (None, serde_json::Value::Null, NO_FT_RATE_HZ),
+    };
     Ok(Devices {
-        calibration: calibration_json(&settings, &ft.description),
+        calibration,
         ft,
         camera,
-        ft_rate_hz: settings.rate_hz,
+        ft_rate_hz,
     })
 }
 
@@ -157,16 +176,26 @@ pub(super) async fn open_rig(
         },
     )
     .await?;
+    let (calibration, ft_rate_hz) = match (&started.ft, &started.ft_settings) {
+        (Some(ft), Some(settings)) => (
+            calibration_json(settings, &ft.description),
+            settings.rate_hz,
+        ),
+        _ => (serde_json::Value::Null, NO_FT_RATE_HZ),
+    };
     let devices = Devices {
-        calibration: calibration_json(&started.ft_settings, &started.ft.description),
-        ft_rate_hz: started.ft_settings.rate_hz,
+        calibration,
+        ft_rate_hz,
         ft: started.ft,
         camera: started.camera,
     };
     tracing::info!(
         "simulated rig: UR5e RTDE {}, {}, camera {}; clock ×{}",
         started.endpoints.rtde,
-        devices.ft.description,
+        devices.ft.as_ref().map_or_else(
+            || "no F/T sensor (forces on the UR5e's flange sensor)".to_owned(),
+            |ft| ft.description.clone()
+        ),
         if devices.camera.is_some() {
             "on"
         } else {

@@ -31,12 +31,22 @@ pub enum Trip {
     OutsideEnvelope { tcp_mm: [f64; 3] },
     /// The controller reports a non-finite TCP pose.
     NonFinitePose,
+    /// No F/T sensor: the UR5e's flange sensor read |F| past `safety.max_force_n` less its
+    /// accuracy margin ([`super::flange`]).
+    FlangeForceLimit {
+        force_n: f64,
+        threshold_n: f64,
+        limit_n: f64,
+    },
 }
 
 impl Trip {
     /// A lost or stalled stream cannot be recorded from: the run stops.
     pub fn is_fatal(&self) -> bool {
-        !matches!(self, Trip::ForceLimit { .. } | Trip::Saturated { .. })
+        !matches!(
+            self,
+            Trip::ForceLimit { .. } | Trip::Saturated { .. } | Trip::FlangeForceLimit { .. }
+        )
     }
 }
 
@@ -76,6 +86,17 @@ impl std::fmt::Display for Trip {
                 f,
                 "the camera stalled: no frame for {after_ms:.0} ms; check its USB cable, or \
                  whether another program holds it"
+            ),
+            Trip::FlangeForceLimit {
+                force_n,
+                threshold_n,
+                limit_n,
+            } => write!(
+                f,
+                "force limit (UR5e flange sensor): |F| = {force_n:.2} N is past {threshold_n:.2} \
+                 N, safety.max_force_n = {limit_n} N less the flange sensor's accuracy; the \
+                 robot was stopped and retracted. Check the plan's depths and the indenter \
+                 (with no [force_sensor] the arm's own sensor is the force watch)"
             ),
         }
     }
@@ -194,6 +215,8 @@ pub struct StreamSettings {
     /// A reported TCP position outside it trips (checked on every robot state the supervisor
     /// sees; `None`: not checked).
     pub envelope: Option<rig_core::config::Envelope>,
+    /// No F/T sensor: the force check on the UR5e's flange readings (every robot state).
+    pub flange: Option<super::flange::FlangeGuard>,
 }
 
 /// Forward `ev` into `tx`, waiting (and counting it) when the channel is full. `false` when the

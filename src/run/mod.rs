@@ -35,7 +35,10 @@
 //! # Safety
 //!
 //! The motion runs under watch of the streams' trips ([`Trip`](events::Trip)): a force above
-//! `safety.max_force_n`, a saturated sensor, an F/T or camera stream that stalls or ends. A trip
+//! `safety.max_force_n`, a saturated sensor, an F/T or camera stream that stalls or ends.
+//! A target sensor recorded without an F/T sensor (no `[force_sensor]`: images, TCP poses
+//! and stage labels only) is watched on the UR5e's own flange force instead, with a margin for
+//! that sensor's accuracy ([`flange`]). A trip
 //! stops the arm (`stopl`), retracts it straight up along the surface normal to the approach
 //! height (when the envelope allows and the robot can move), and fails the trajectory with the
 //! reason. A protective or emergency stop or a lost RTDE link fails the trajectory through the
@@ -78,6 +81,7 @@ pub mod budget;
 pub mod collector;
 mod devices;
 pub mod events;
+pub mod flange;
 mod options;
 mod output;
 mod pipeline;
@@ -115,6 +119,9 @@ pub async fn run(
     // Safety first: nothing connects before every waypoint has been checked,
     let plan = Plan::build(config, indenter)?;
     let planned = options::planned(config, &plan, opts)?;
+    // nor before the force watch is known to hold: a config without an F/T sensor is watched on
+    // the UR5e's flange sensor, which must be able to enforce the limit.
+    let flange = flange::guard(config)?;
     let speed = opts.clock_speed(config);
     // nor before the output directory is (an existing recording is only continued on --resume).
     let ids: Vec<String> = planned.iter().map(|t| t.id.clone()).collect();
@@ -128,6 +135,7 @@ pub async fn run(
         simulated: config.robot.simulated,
         out: opts.out.clone(),
         skipped: planned.len() - todo.len(),
+        flange_watch: flange.is_some(),
         ..Default::default()
     };
     let Some(first) = todo.first() else {
@@ -163,6 +171,7 @@ pub async fn run(
     let pipeline = Pipeline::start(
         config,
         opts,
+        flange,
         devices,
         sim.as_ref(),
         &clock,

@@ -44,6 +44,7 @@ impl Pipeline {
     pub fn start(
         config: &RigConfig,
         opts: &RunOptions,
+        flange: Option<super::flange::FlangeGuard>,
         devices: Devices,
         sim: Option<&RunningSimRig>,
         clock: &Clock,
@@ -52,6 +53,7 @@ impl Pipeline {
         robot: &Robot,
     ) -> Self {
         let camera_fps = config.camera.as_ref().map_or(30.0, |c| c.fps);
+        let has_ft = devices.ft.is_some();
         let (ev_tx, ev_rx) = mpsc::channel(8192);
         let streams = Streams::start(
             devices.ft,
@@ -63,6 +65,7 @@ impl Pipeline {
                 ft_stall: Duration::from_secs_f64(0.5 * speed),
                 camera_stall: Duration::from_secs_f64((0.5f64).max(10.0 / camera_fps) * speed),
                 envelope: Some(config.safety.envelope),
+                flange,
             },
             ev_tx,
             Some(SafetyIo {
@@ -100,6 +103,7 @@ impl Pipeline {
                 // Longer than the stall limits, so a stalled stream trips first and is named.
                 end_timeout: Duration::from_secs_f64(2.0 * speed),
                 camera: config.camera.is_some(),
+                wrench: has_ft,
                 rtde_clock: no_jumps,
             },
             clock.clone(),

@@ -1,5 +1,7 @@
 //! The safety supervisor: one task, for the whole run, that checks every F/T sample and the
 //! liveness of both streams, feeds the controller's watchdog, and commands the stop first.
+//! Without an F/T sensor it checks the UR5e's flange force on every robot state instead
+//! ([`super::flange`]).
 //!
 //! What it never does is wait on anything recording can fill. F/T samples go on to the
 //! recording through a queue it only `try_send`s into (a full queue loses the sample for the
@@ -26,6 +28,7 @@ use rig_core::ft::SampleFlags;
 use tokio::sync::{mpsc, watch};
 
 use super::events::{Event, StreamCounters, StreamSettings, Trip};
+use super::flange::FlangeGuard;
 use crate::force::{FtStream, WrenchSample};
 use crate::robot::{RobotState, SafetyLine};
 
@@ -243,13 +246,13 @@ impl Supervisor {
 
     async fn run(
         mut self,
-        mut ft: FtStream,
+        mut ft: Option<FtStream>,
         mut states: Option<watch::Receiver<Option<RobotState>>>,
         mut trips_in: mpsc::UnboundedReceiver<Trip>,
         mut frozen: watch::Receiver<bool>,
     ) {
         let clock = self.clock.clone();
-        let mut ft_open = true;
+        let mut ft_open = ft.is_some();
         loop {
             if *frozen.borrow_and_update() {
                 // A hung supervisor, on purpose: nothing is checked and no heartbeat goes out.
@@ -273,15 +276,19 @@ impl Supervisor {
                 t = trips_in.recv() => if let Some(t) = t {
                     self.raise(t, clock.now_ns()).await;
                 },
-                s = ft.next(), if ft_open => match s {
+                s = next_sample(&mut ft), if ft_open => match s {
                     Some(s) => self.sample(s).await,
                     None => {
                         ft_open = false;
                         self.ft_stalled = true; // lost, not stalled: no stall trip on top
                         let why = ft
-                            .error()
-                            .map(|e| e.to_string())
-                            .unwrap_or_else(|| format!("{} stopped", ft.description));
+                            .as_ref()
+                            .and_then(|ft| {
+                                ft.error()
+                                    .map(|e| e.to_string())
+                                    .or_else(|| Some(format!("{} stopped", ft.description)))
+                            })
+                            .unwrap_or_default();
                         self.raise(Trip::FtLost(why), clock.now_ns()).await;
                     }
                 },
@@ -300,7 +307,8 @@ impl Supervisor {
         }
     }
 
-    /// Check a robot state: a finite TCP pose inside the envelope.
+    /// Check a robot state: a finite TCP pose inside the envelope, and without an F/T sensor
+    /// the flange sensor's force.
     async fn state(&self, s: &RobotState) {
         *self
             .shared
@@ -309,6 +317,16 @@ impl Supervisor {
             .unwrap_or_else(|e| e.into_inner()) = Some(*s);
         let p = s.actual_tcp_pose;
         let now = self.clock.now_ns();
+        if let Some(g) = &self.settings.flange
+            && g.trips(&s.actual_tcp_force)
+        {
+            let t = Trip::FlangeForceLimit {
+                force_n: FlangeGuard::force_n(&s.actual_tcp_force),
+                threshold_n: g.threshold_n,
+                limit_n: g.limit_n,
+            };
+            self.raise(t, s.t_host_ns.min(now)).await;
+        }
         if !p.to_array().iter().all(|v| v.is_finite()) {
             self.raise(Trip::NonFinitePose, now).await;
             return;
@@ -343,6 +361,14 @@ impl Supervisor {
     }
 }
 
+/// The next F/T sample; never, without an F/T sensor.
+async fn next_sample(ft: &mut Option<FtStream>) -> Option<WrenchSample> {
+    match ft {
+        Some(ft) => ft.next().await,
+        None => std::future::pending().await,
+    }
+}
+
 /// The next change of the robot's state; never, without one.
 async fn state_changed(
     states: &mut Option<watch::Receiver<Option<RobotState>>>,
@@ -353,11 +379,12 @@ async fn state_changed(
     }
 }
 
-/// Starts the supervisor on `ft` (see the module docs); with `io`, it beats and stops through
-/// its line. Returns the task and the forwarder that carries samples to `out`.
+/// Starts the supervisor on `ft` (see the module docs; none: no F/T sensor, no F/T checks or
+/// stall watch); with `io`, it beats and stops through its line. Returns the task and the
+/// forwarder that carries samples to `out`.
 #[allow(clippy::too_many_arguments)] // each is one of the supervisor's inputs
 pub(super) fn spawn(
-    ft: FtStream,
+    ft: Option<FtStream>,
     clock: Clock,
     settings: StreamSettings,
     camera: bool,
@@ -395,7 +422,8 @@ pub(super) fn spawn(
         camera,
         start_ns: now,
         last_ft_ns: now,
-        ft_stalled: false,
+        // Without an F/T sensor there is no stream to stall.
+        ft_stalled: ft.is_none(),
         camera_stalled: false,
     };
     let task = tokio::spawn(sup.run(ft, states, trips_in, frozen));

@@ -40,7 +40,8 @@ const ENCODER_QUEUE: usize = 64;
 pub struct Streams {
     shared: Arc<safety::Shared>,
     trips_in: mpsc::UnboundedSender<Trip>,
-    tare: TareHandle,
+    /// `None` without an F/T sensor.
+    tare: Option<TareHandle>,
     tasks: Vec<JoinHandle<()>>,
     encoder: Option<std::thread::JoinHandle<()>>,
     stop: Arc<AtomicBool>,
@@ -60,10 +61,11 @@ impl SupervisorFreeze {
 }
 
 impl Streams {
-    /// Starts the supervisor on `ft` and the camera task on `camera`. Events go to `out` (the
-    /// collector's input). With `safety`, the supervisor owns the robot's heartbeat and stop.
+    /// Starts the supervisor on `ft` (none: no F/T sensor, forces are watched on the flange,
+    /// `settings.flange`) and the camera task on `camera`. Events go to `out` (the collector's
+    /// input). With `safety`, the supervisor owns the robot's heartbeat and stop.
     pub fn start(
-        ft: FtStream,
+        ft: Option<FtStream>,
         camera: Option<Box<dyn FrameSource>>,
         clock: Clock,
         settings: StreamSettings,
@@ -88,7 +90,7 @@ impl Streams {
             frozen: watch::channel(false).0,
         });
         let stop = Arc::new(AtomicBool::new(false));
-        let tare = ft.tare_handle();
+        let tare = ft.as_ref().map(FtStream::tare_handle);
         let (trips_in, trips_rx) = mpsc::unbounded_channel();
         let mut tasks: Vec<JoinHandle<()>> = safety::spawn(
             ft,
@@ -210,7 +212,12 @@ impl Streams {
 
     /// Tare the F/T over the next `samples` samples (the indenter must be off the gel).
     pub async fn tare(&self, samples: u64) -> Result<TareReport, crate::force::FtError> {
-        self.tare.tare(samples).await
+        match &self.tare {
+            Some(t) => t.tare(samples).await,
+            None => Err(crate::force::FtError::Config(
+                "the config has no [force_sensor]: there is no F/T sensor to tare".into(),
+            )),
+        }
     }
 
     /// Stops every task and the encoder.
@@ -364,7 +371,7 @@ mod tests {
         let (ft, sink, _ctl, _done) = FtStream::channel("test".into());
         let (out_tx, mut out_rx) = mpsc::channel(64);
         let streams = Streams::start(
-            ft,
+            Some(ft),
             None,
             Clock::system(),
             StreamSettings {
@@ -372,6 +379,7 @@ mod tests {
                 ft_stall: Duration::from_secs(60),
                 camera_stall: Duration::from_secs(60),
                 envelope: None,
+                flange: None,
             },
             out_tx,
             None,

@@ -85,6 +85,9 @@ pub struct RunSummary {
     /// The recording's disk stopped answering (see [`crate::record::STALL_LIMIT`]): why. The
     /// run stopped; the writer was left hanging, and the directory is as it last saved it.
     pub recording_stalled: Option<String>,
+    /// No F/T sensor: nothing was paired, and the force limit was watched on the UR5e's flange
+    /// sensor ([`super::flange`]).
+    pub flange_watch: bool,
 }
 
 /// A retract along the surface normal to the approach height.
@@ -199,11 +202,20 @@ impl RunSummary {
             self.wall_time_s,
         );
         s.push_str(&format!(
-            "recorded: {frames} frames ({dropped} dropped), {wrench} wrench samples, {poses} TCP poses\n\
-             pairing: {ok} ok, {held} held at a stream end, {refused} refused; sync error p50 {:.3} ms, p99 {:.3} ms\n",
-            p50 * 1e-6,
-            p99 * 1e-6
+            "recorded: {frames} frames ({dropped} dropped), {wrench} wrench samples, {poses} TCP poses\n"
         ));
+        if self.flange_watch {
+            s.push_str(
+                "pairing: none (no F/T sensor: images, TCP poses and stages only; the force \
+                 limit was watched on the UR5e's flange sensor)\n",
+            );
+        } else {
+            s.push_str(&format!(
+                "pairing: {ok} ok, {held} held at a stream end, {refused} refused; sync error p50 {:.3} ms, p99 {:.3} ms\n",
+                p50 * 1e-6,
+                p99 * 1e-6
+            ));
+        }
         if let Some(e) = truth {
             s.push_str(&format!(
                 "paired vs simulator's true force: largest error {e:.4} N\n"

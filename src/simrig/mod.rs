@@ -86,10 +86,11 @@ pub struct StartOptions {
 pub struct Started {
     pub rig: RunningSimRig,
     pub endpoints: RobotEndpoints,
-    /// The simulated Nano17, read by the lab's Net F/T or serial front end.
-    pub ft: FtStream,
+    /// The simulated Nano17, read by the lab's Net F/T or serial front end (`None`: the config
+    /// has no `[force_sensor]`).
+    pub ft: Option<FtStream>,
     /// The front-end settings the stream was opened with (for the manifest).
-    pub ft_settings: FrontEndSettings,
+    pub ft_settings: Option<FrontEndSettings>,
     pub camera: Option<Box<dyn FrameSource>>,
 }
 
@@ -187,12 +188,45 @@ pub async fn start(
         script: rig.ur5e().script_addr(),
     };
 
-    let fs = config
-        .force_sensor
-        .as_ref()
-        .context("the simulated rig needs a [force_sensor] section (kind = \"sim\")")?;
+    // Without a [force_sensor] the Nano17 twin still runs, unread: the rig records images,
+    // poses and stages, and watches forces on the UR5e's flange sensor.
+    let (ft, settings) = match config.force_sensor.as_ref() {
+        Some(fs) => {
+            let (ft, settings) = open_sim_ft(&rig, fs, opts.ft_front_end, clock).await?;
+            (Some(ft), Some(settings))
+        }
+        None => (None, None),
+    };
+
+    let mut camera_faults = None;
+    let camera: Option<Box<dyn FrameSource>> = match (&config.camera, rig.take_camera()) {
+        (Some(c), Some(cam)) => {
+            camera_faults = Some(cam.faults());
+            Some(Box::new(
+                SimFrameSource::new(cam, clock.clone(), c.width_px, c.height_px)
+                    .with_truth(Arc::new(rig.physics().clone())),
+            ))
+        }
+        _ => None,
+    };
+    Ok(Started {
+        rig: RunningSimRig { rig, camera_faults },
+        endpoints,
+        ft,
+        ft_settings: settings,
+        camera,
+    })
+}
+
+/// Opens the simulated rig's Nano17 through `front_end` with the lab's reader, as `fs` says.
+async fn open_sim_ft(
+    rig: &SimRig,
+    fs: &rig_core::config::ForceSensorConfig,
+    front_end: SimFtFrontEnd,
+    clock: &Clock,
+) -> anyhow::Result<(FtStream, FrontEndSettings)> {
     let mut settings = FrontEndSettings::from_config(fs)?;
-    let ft = match opts.ft_front_end {
+    let ft = match front_end {
         SimFtFrontEnd::NetFt => {
             let addr = rig
                 .netft_addr()
@@ -227,23 +261,5 @@ pub async fn start(
             nidaqmx::open(fs, &mut settings, source, faults, clock.clone()).await?
         }
     };
-
-    let mut camera_faults = None;
-    let camera: Option<Box<dyn FrameSource>> = match (&config.camera, rig.take_camera()) {
-        (Some(c), Some(cam)) => {
-            camera_faults = Some(cam.faults());
-            Some(Box::new(
-                SimFrameSource::new(cam, clock.clone(), c.width_px, c.height_px)
-                    .with_truth(Arc::new(rig.physics().clone())),
-            ))
-        }
-        _ => None,
-    };
-    Ok(Started {
-        rig: RunningSimRig { rig, camera_faults },
-        endpoints,
-        ft,
-        ft_settings: settings,
-        camera,
-    })
+    Ok((ft, settings))
 }

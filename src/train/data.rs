@@ -332,6 +332,23 @@ pub fn load_unlabelled(
     })
 }
 
+/// Whether the dataset(s) in `dir` hold forces: false when a run was recorded without an F/T
+/// sensor ([`Manifest::records_forces`]), whose images serve the translator only.
+pub fn has_forces(dir: &Path) -> anyhow::Result<bool> {
+    if dir.join(PREPARED_INDEX).is_file() {
+        return Ok(true);
+    }
+    for run in find_runs(dir)? {
+        if !Manifest::load(&run)
+            .map_err(anyhow::Error::msg)?
+            .records_forces()
+        {
+            return Ok(false);
+        }
+    }
+    Ok(true)
+}
+
 /// Images with forces for evaluation, from any dataset that has forces.
 pub fn load_eval(dir: &Path, spec: &ImageSpec, progress: bool) -> anyhow::Result<EvalSet> {
     let loaded = load_any(dir, spec, 1.0, true, progress)?;
@@ -372,6 +389,17 @@ fn load_any(
     let mut jobs = Vec::new();
     for run in find_runs(dir)? {
         let m = Manifest::load(&run).map_err(anyhow::Error::msg)?;
+        // A target recorded without an F/T sensor: every frame, and no forces to give.
+        let unlabelled = !m.records_forces();
+        if unlabelled && want_forces {
+            bail!(
+                "{} was recorded without an F/T sensor (its rig config has no [force_sensor]): \
+                 its frames carry no forces. Evaluating a force model needs a labelled target, \
+                 recorded with an F/T sensor fitted; this recording serves the translator as it \
+                 is (`rig train translate --target`)",
+                run.display()
+            );
+        }
         // Dots grow with the magnification.
         let params = marker_params(&m.config).scaled(zoom as f32);
         let optics = if spec.modality.per_frame() {
@@ -401,6 +429,7 @@ fn load_any(
                     m.indenter.clone(),
                     params,
                     optics.clone(),
+                    unlabelled,
                 ));
             }
         }
@@ -420,13 +449,20 @@ fn load_any(
             s.spawn(|| {
                 loop {
                     let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    let Some((path, id, indenter, params, optics)) = jobs.get(i) else {
+                    let Some((path, id, indenter, params, optics, unlabelled)) = jobs.get(i) else {
                         break;
                     };
                     let prep = FramePrep::new(spec, *params, optics.as_ref());
+                    let want = if *unlabelled {
+                        Want::EveryFrame
+                    } else {
+                        Want::Paired {
+                            forces: want_forces,
+                        }
+                    };
                     let r = prep
                         .and_then(|prep| {
-                            load_trajectory(path, id, indenter, spec, zoom, prep, want_forces)
+                            load_trajectory(path, id, indenter, spec, zoom, prep, want)
                         })
                         .with_context(|| format!("{}", path.display()));
                     bar.inc(1);
@@ -463,6 +499,15 @@ pub fn sensor_optics(config: &serde_json::Value) -> anyhow::Result<rig_core::opt
     serde_json::from_value(optics.clone()).context("the manifest's [optics] section")
 }
 
+/// Which frames of a trajectory file to load.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Want {
+    /// The frames with a paired force (with their forces when `forces`).
+    Paired { forces: bool },
+    /// Every frame, no forces: a recording without an F/T sensor has no paired records.
+    EveryFrame,
+}
+
 /// Decode one trajectory file (through the cache).
 fn load_trajectory(
     path: &Path,
@@ -471,8 +516,10 @@ fn load_trajectory(
     spec: &ImageSpec,
     zoom: f64,
     mut prep: FramePrep,
-    want_forces: bool,
+    want: Want,
 ) -> anyhow::Result<Loaded> {
+    let want_forces = want == Want::Paired { forces: true };
+    let every_frame = want == Want::EveryFrame;
     let meta = fs::metadata(path)?;
     let stamp = (
         meta.len(),
@@ -486,7 +533,7 @@ fn load_trajectory(
         .unwrap_or(Path::new("."))
         .join(CACHE_DIR)
         .join(format!(
-            "{id}-{}x{}-{}{}.bin",
+            "{id}-{}x{}-{}{}{}.bin",
             spec.width,
             spec.height,
             spec.modality.name().replace('+', "_"),
@@ -494,7 +541,8 @@ fn load_trajectory(
                 String::new()
             } else {
                 format!("-zoom{zoom:.4}")
-            }
+            },
+            if every_frame { "-unpaired" } else { "" }
         ));
     if let Some((pixels, frames, forces)) = read_cache(&cache, stamp, spec) {
         return Ok(Loaded {
@@ -526,8 +574,11 @@ fn load_trajectory(
         }
     }
     // Frames without a paired force (refused pairings) are left out of every set, so that a
-    // labelled and an unlabelled load of one file agree.
-    images.retain(|(seq, _)| paired.contains_key(seq));
+    // labelled and an unlabelled load of one file agree. A file recorded without an F/T sensor
+    // has none paired: all its frames are kept.
+    if !every_frame {
+        images.retain(|(seq, _)| paired.contains_key(seq));
+    }
     images.sort_by_key(|(seq, _)| *seq);
     let mut pixels = Vec::with_capacity(images.len() * spec.frame_bytes());
     let mut forces = Vec::with_capacity(images.len());
@@ -540,7 +591,9 @@ fn load_trajectory(
             images::zoom_about_centre(&img, zoom)
         };
         pixels.extend_from_slice(&prep.next(&img).with_context(|| format!("frame {seq}"))?);
-        forces.push(paired[seq]);
+        if let Some(f) = paired.get(seq) {
+            forces.push(*f);
+        }
     }
     let frames = images.len();
     write_cache(&cache, stamp, spec, &pixels, frames, &forces);
@@ -571,10 +624,15 @@ fn read_cache(path: &Path, stamp: (u64, u64), spec: &ImageSpec) -> Option<Cached
         return None;
     }
     let px = frames.checked_mul(spec.frame_bytes())?;
-    if buf.len() != head + px + frames * 12 {
+    // Forces follow the pixels, or none at all (frames recorded without an F/T sensor).
+    let labelled = buf.len() == head + px + frames * 12;
+    if !labelled && buf.len() != head + px {
         return None;
     }
     let pixels = buf[head..head + px].to_vec();
+    if !labelled {
+        return Some((pixels, frames, None));
+    }
     let forces = buf[head + px..]
         .chunks_exact(12)
         .map(|c| {

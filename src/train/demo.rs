@@ -477,18 +477,29 @@ pub fn run(
         Ok(models)
     })?;
 
-    eprintln!("[4/4] evaluating on the target sensor");
-    for (_, dir) in &models {
-        table.rows.extend(eval::evaluate(
-            dir,
-            &tgt_dir,
-            &out.join("results"),
-            &split,
-            progress,
-        )?);
+    if data::has_forces(&tgt_dir)? {
+        eprintln!("[4/4] evaluating on the target sensor");
+        for (_, dir) in &models {
+            table.rows.extend(eval::evaluate(
+                dir,
+                &tgt_dir,
+                &out.join("results"),
+                &split,
+                progress,
+            )?);
+        }
+        let rgbm_eval = data::load_eval(&tgt_dir, &rgbm, false)?;
+        table.range_n = Some(eval::force_range(&rgbm_eval));
+    } else {
+        // A target recorded without an F/T sensor served the translator; its frames carry no
+        // forces to score the models against.
+        eprintln!(
+            "[4/4] not evaluated: the target sensor was recorded without an F/T sensor (no \
+             [force_sensor]), and evaluating against forces needs a labelled target. The \
+             translated images and the trained models are in {}",
+            out.display()
+        );
     }
-    let rgbm_eval = data::load_eval(&tgt_dir, &rgbm, false)?;
-    table.range_n = Some(eval::force_range(&rgbm_eval));
     table.write(&out.join("results"))?;
     eprintln!("      total {:.0} s", t0.elapsed().as_secs_f64());
     Ok(table)

@@ -362,7 +362,7 @@ async fn ft_nidaqmx_device_removal_trips_the_supervisor_within_one_stall_period(
     let drain = tokio::spawn(async move { while rx.recv().await.is_some() {} });
     let stall = Duration::from_millis(500);
     let streams = Streams::start(
-        stream,
+        Some(stream),
         None,
         clock.clone(),
         StreamSettings {
@@ -370,6 +370,7 @@ async fn ft_nidaqmx_device_removal_trips_the_supervisor_within_one_stall_period(
             ft_stall: stall,
             camera_stall: Duration::from_secs(1),
             envelope: None,
+            flange: None,
         },
         tx,
         None,

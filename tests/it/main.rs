@@ -20,6 +20,7 @@ mod demo;
 mod disk_budget;
 mod docs;
 mod fault_drills;
+mod flange_force;
 mod flow;
 mod ft_daq;
 mod ft_netft;

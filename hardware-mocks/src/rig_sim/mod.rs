@@ -14,7 +14,9 @@
 //! - [`PhysicsRenderer`]: a [`FrameRenderer`](crate::camera::FrameRenderer) that shades the latest surface field with the
 //!   sensor's optics ([`optics::render`](crate::sim::optics::render)).
 //! - [`SimRig`]: starts the UR5e, the physics task, a Net F/T mock driven by the physics and,
-//!   optionally, a simulated camera driven by the renderer, all on one [`Clock`].
+//!   optionally, a simulated camera driven by the renderer, all on one [`Clock`]. The UR5e's
+//!   flange force/torque sensor (`actual_TCP_force`) reads the same physics
+//!   ([`crate::ur5e::flange`]).
 //!
 //! # Geometry
 //!
@@ -103,7 +105,7 @@ use crate::nano17::netft::{NetFtMock, NetFtMockConfig};
 use crate::nano17::serial::{SerialControllerMock, SerialMockConfig};
 use crate::sim::optics::ImageEffects;
 use crate::truth::SharedWrenchSource;
-use crate::ur5e::{Ur5e, Ur5eConfig};
+use crate::ur5e::{FlangeSensor, UR5E_FLANGE, Ur5e, Ur5eConfig};
 
 use config::invalid;
 pub use config::{DEFAULT_HISTORY, DEFAULT_PHYSICS_RATE_HZ, PhysicsConfig};
@@ -111,6 +113,10 @@ pub use physics::*;
 pub use tape::{
     CROP_MM, ContactCache, MATCH_MM, MAX_DRIFT_NS, MAX_REST_SLIP_NS, TapeStats, cache_key,
 };
+
+/// Mixed into [`SimRigOptions::netft_seed`] for the UR5e flange sensor's errors, so the arm's
+/// and the Nano17's noise are not the same sequence.
+const FLANGE_SEED: u64 = 0x5552_3565_666c_616e;
 
 /// How [`SimRig::start`] sets the simulated rig up beyond the rig config.
 #[derive(Debug, Clone)]
@@ -300,6 +306,16 @@ impl SimRig {
             opts.camera.is_some(),
             cache,
         )?;
+        // The arm's own flange sensor reads the same contact (the reaction on the tool, with
+        // the UR5e data sheet's accuracy), from the newest physics step: never a solve on the
+        // controller's tick.
+        let newest = physics.clone();
+        ur5e.fit_flange_sensor(FlangeSensor::new(
+            Arc::new(move || newest.latest()),
+            frame,
+            UR5E_FLANGE,
+            opts.netft_seed ^ FLANGE_SEED,
+        ));
         // The state at start, so the F/T and the camera have a sample from t = start.
         let (t_start, tip) = ur5e.tip_pose_now();
         if let Err(e) = physics.update(t_start, &tip) {

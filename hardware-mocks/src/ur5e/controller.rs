@@ -96,6 +96,9 @@ pub struct Controller {
     /// Flange → physical tool tip ([`super::Ur5eConfig::tool_offset`]).
     tool_offset: Pose,
     pub(super) speed: [f64; 6],
+    /// The flange sensor's newest reading (`actual_TCP_force`), set on each tick by
+    /// `Shared::process_due_ticks`; zero without a sensor.
+    pub(super) tcp_force: [f64; 6],
     pub(super) motion: Option<ActiveMotion>,
     pub(super) next_motion_id: u64,
     pub robot_mode: i32,
@@ -163,6 +166,7 @@ impl Controller {
             tcp_offset: Pose::default(),
             tool_offset,
             speed: [0.0; 6],
+            tcp_force: [0.0; 6],
             motion: None,
             next_motion_id: 1,
             robot_mode,
@@ -223,6 +227,7 @@ impl Controller {
             // Tracking error is not modelled: the target is where the arm is.
             target_tcp_pose: self.tcp_pose(),
             actual_tcp_speed: self.speed,
+            actual_tcp_force: self.tcp_force,
             robot_mode: self.robot_mode,
             safety_mode: self.safety_mode,
             runtime_state: self.runtime_state,

@@ -73,13 +73,16 @@
 //!
 //! # Not modelled
 //!
-//! Joint space (joint values are zeros), forces (`actual_TCP_force` is zero; the contact
-//! simulator supplies forces elsewhere), the binary robot-state stream real controllers send on
-//! the secondary interface, and URScript beyond the interpreter's subset ([`urscript`]).
+//! Joint space (joint values are zeros), the binary robot-state stream real controllers send
+//! on the secondary interface, and URScript beyond the interpreter's subset ([`urscript`]).
+//! `actual_TCP_force` is zero unless a [`FlangeSensor`] is fitted
+//! ([`Ur5e::fit_flange_sensor`]; the simulated rig fits one reading its contact physics, with
+//! the data sheet's accuracy, see [`flange`]); the URScript `zero_ftsensor()` is not modelled.
 
 pub mod config;
 pub mod controller;
 pub mod dashboard;
+pub mod flange;
 pub mod motion;
 pub mod program;
 pub mod rtde_server;
@@ -107,6 +110,7 @@ use shared::{FaultState, Shared};
 
 pub use config::Ur5eConfig;
 pub use controller::{CommandReceived, StopRequestReceived};
+pub use flange::{FlangeSensor, FlangeSpec, UR5E_FLANGE};
 pub use snapshot::ControllerSnapshot;
 
 /// A running simulated controller. Dropping it (or [`Ur5e::shutdown`]) stops every task.
@@ -173,6 +177,7 @@ impl Ur5e {
             poses: Mutex::new(std::collections::VecDeque::with_capacity(
                 shared::POSE_HISTORY,
             )),
+            flange: Mutex::new(None),
         });
         let tasks = vec![
             tokio::spawn(run_controller(shared.clone())),
@@ -282,6 +287,12 @@ impl Ur5e {
         let poses = self.shared.poses.lock().unwrap_or_else(|p| p.into_inner());
         let i = poses.partition_point(|p| p.t_ns <= t_ns);
         poses.get(i.saturating_sub(1)).copied()
+    }
+
+    /// Fits the flange force/torque sensor: from the next tick on, `actual_TCP_force` is its
+    /// reading.
+    pub fn fit_flange_sensor(&self, sensor: FlangeSensor) {
+        *self.shared.flange.lock().unwrap_or_else(|p| p.into_inner()) = Some(sensor);
     }
 
     /// Every input data package that changed IN_CMD_SEQ ([`rig_core::control::IN_CMD_SEQ`]),

@@ -14,6 +14,7 @@ use tokio::sync::{broadcast, watch};
 
 use super::config::Ur5eConfig;
 use super::controller::Controller;
+use super::flange::FlangeSensor;
 use super::snapshot::ControllerSnapshot;
 
 #[derive(Debug, Default)]
@@ -46,6 +47,9 @@ pub(super) struct Shared {
     /// [`POSE_HISTORY`] ticks, oldest first, for [`Ur5e::tcp_pose_at`](super::Ur5e::tcp_pose_at)
     /// and [`Ur5e::tip_pose_at`](super::Ur5e::tip_pose_at).
     pub(super) poses: Mutex<VecDeque<TickPoses>>,
+    /// The flange force/torque sensor, read on every tick (none: `actual_TCP_force` is zero).
+    /// A leaf lock: its contact source never calls back into the controller.
+    pub(super) flange: Mutex<Option<FlangeSensor>>,
 }
 
 /// The poses of one tick.
@@ -71,6 +75,14 @@ impl Shared {
             *next += self.tick_period_ns;
             let (snap, tip) = {
                 let mut c = self.lock();
+                if let Some(f) = self
+                    .flange
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .as_mut()
+                {
+                    c.tcp_force = f.read();
+                }
                 let snap = c.tick(t_ns);
                 (Arc::new(snap), c.tip_pose())
             };

@@ -15,6 +15,9 @@ pub struct ControllerSnapshot {
     pub target_tcp_pose: Pose,
     /// `[vx, vy, vz, wx, wy, wz]`, m/s and rad/s in the base frame.
     pub actual_tcp_speed: [f64; 6],
+    /// RTDE `actual_TCP_force`: the external wrench on the tool measured by the flange sensor,
+    /// base frame, N and N·m about the TCP (zero without a [`super::FlangeSensor`]).
+    pub actual_tcp_force: [f64; 6],
     pub robot_mode: i32,
     pub safety_mode: i32,
     pub runtime_state: u32,
@@ -39,6 +42,7 @@ impl Default for ControllerSnapshot {
             actual_tcp_pose: Pose::default(),
             target_tcp_pose: Pose::default(),
             actual_tcp_speed: [0.0; 6],
+            actual_tcp_force: [0.0; 6],
             robot_mode: control::robot_mode::POWER_OFF,
             safety_mode: control::safety_mode::NORMAL,
             runtime_state: control::runtime_state::STOPPED,

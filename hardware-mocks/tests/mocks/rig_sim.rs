@@ -579,3 +579,102 @@ async fn a_stalled_physics_task_leaves_no_gap_and_late_frames_see_their_own_inst
         );
     }
 }
+
+/// The UR5e's flange sensor over real RTDE: pressing a gel a hundred times as stiff as the rig's
+/// (so the contact force is far above the sensor's 4 N accuracy), `actual_TCP_force` reads the
+/// reaction on the tool in the base frame (the gel faces up: +z), within the data sheet's
+/// accuracy of the contact physics' wrench on every package.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_ur5e_reports_the_contact_as_its_flange_force_within_the_sensors_accuracy() {
+    let mut cfg = RigConfig::sim_source();
+    cfg.elastomer.youngs_modulus_mpa *= 100.0;
+    let frame = cfg.sensor.surface_frame;
+    let (clock, h) = Clock::manual();
+    let opts = SimRigOptions {
+        initial_robot_mode: robot_mode::RUNNING,
+        physics: PhysicsConfig {
+            viscoelastic: false,
+            ..PhysicsConfig::default()
+        },
+        ..SimRigOptions::default()
+    };
+    let rig = SimRig::start(&cfg, sphere(), clock.clone(), opts)
+        .await
+        .unwrap();
+    upload_program(rig.ur5e()).await;
+    let mut rtde = RawClient::connect(rig.ur5e().rtde_addr()).await;
+    rtde.handshake(2).await;
+    let (id, types) = rtde
+        .setup_outputs(500.0, &["timestamp", "actual_TCP_force"])
+        .await;
+    assert!(id.is_some(), "actual_TCP_force refused: {types:?}");
+    assert!(rtde.start().await);
+    let spec = hardware_mocks::ur5e::UR5E_FLANGE;
+    let forces = |rows: &[Vec<Value>]| -> Vec<[f64; 6]> {
+        rows.iter()
+            .map(|r| match r[1] {
+                Value::Vector6d(v) => v,
+                ref other => panic!("actual_TCP_force is {other:?}"),
+            })
+            .collect()
+    };
+
+    // Above the gel: nothing but the sensor's own error.
+    rig.ur5e().step_ticks(&h, 50).await;
+    let above = forces(&rtde.collect_data(&types, Duration::from_millis(300)).await);
+    assert!(above.len() >= 40, "{} packages", above.len());
+    for f in &above {
+        for k in 0..3 {
+            assert!(f[k].abs() <= spec.force_accuracy_n, "unloaded: {f:?}");
+        }
+    }
+
+    // Down 0.5 mm into the gel, and rest there.
+    let target = pose_above_surface(&frame, 0.0, 0.0, -DEPTH_MM);
+    let _client = movel(rig.ur5e(), 1, target, 0.01, 0.1).await;
+    let mut ticks = 0;
+    while rig.ur5e().snapshot().output_int_registers[control::OUT_DONE_SEQ as usize] != 1 {
+        rig.ur5e().step_ticks(&h, 1).await;
+        ticks += 1;
+        assert!(ticks < 400, "the move did not finish");
+    }
+    rig.ur5e().step_ticks(&h, 20).await;
+    physics_reaches(rig.physics(), rig.ur5e().snapshot().t_ns).await;
+    let _ = rtde.collect_data(&types, Duration::from_millis(200)).await;
+    let on_gel = rig.physics().latest().unwrap().1;
+    let truth = hardware_mocks::ur5e::flange::on_tool_in_base(&frame, &on_gel);
+    assert!(
+        truth[2] > 2.0 * spec.force_accuracy_n,
+        "the stiff gel pushes the tool up well past the sensor's accuracy: {truth:?}"
+    );
+    rig.ur5e().step_ticks(&h, 200).await;
+    let pressed = forces(&rtde.collect_data(&types, Duration::from_millis(300)).await);
+    assert!(pressed.len() >= 150, "{} packages", pressed.len());
+    let mut mean = [0.0; 3];
+    for f in &pressed {
+        for k in 0..3 {
+            assert!(
+                (f[k] - truth[k]).abs() <= spec.force_accuracy_n,
+                "axis {k}: read {f:?}, true {truth:?}"
+            );
+            mean[k] += f[k] / pressed.len() as f64;
+        }
+        for k in 3..6 {
+            assert!((f[k] - truth[k]).abs() <= spec.torque_accuracy_nm, "{f:?}");
+        }
+    }
+    // The readings scatter about the truth plus a fixed offset within the data sheet's bounds.
+    for k in 0..3 {
+        assert!(
+            (mean[k] - truth[k]).abs() <= spec.force_accuracy_n - spec.force_precision_n + 0.25,
+            "axis {k}: mean {mean:?} against {truth:?}"
+        );
+    }
+    // The controller's own snapshot reports what the stream carried.
+    let snap = rig.ur5e().snapshot().actual_tcp_force;
+    assert!(
+        (snap[2] - truth[2]).abs() <= spec.force_accuracy_n,
+        "{snap:?}"
+    );
+    rig.shutdown().await;
+}
