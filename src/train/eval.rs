@@ -172,7 +172,87 @@ pub fn evaluate_on(
         &p.pred,
         &p.truth,
     )?;
+    write_indenter_csv(
+        &out.join(format!("per-indenter-{}.csv", slug(&model.info.method))),
+        &indenter_rows(&p, split),
+    )?;
     Ok((rows, p))
+}
+
+/// One indenter's scores (`rig eval` writes them beside the table, `per-indenter-*.csv`): which
+/// indenters hold an axis back is what the pooled R² cannot say.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct IndenterRow {
+    pub indenter: String,
+    pub group: String,
+    pub scores: AxisScores,
+    /// Mean true |Fz| over its frames, N: how hard the indenter presses.
+    pub mean_abs_fz: f64,
+    /// Mean (predicted − true) per axis, N: a model that under-reads an indenter's force shows
+    /// it here, where its R² alone could be lifted by the other indenters.
+    pub bias: [f64; 3],
+}
+
+/// Scores per indenter, in name order, with the shear-loaded frames chosen as in [`rows`] (one
+/// threshold over every frame).
+pub fn indenter_rows(p: &Predictions, split: &Split) -> Vec<IndenterRow> {
+    let load = metrics::ShearLoad::of(&p.truth);
+    let mut names: Vec<&String> = p.indenter.iter().collect();
+    names.sort();
+    names.dedup();
+    names
+        .into_iter()
+        .map(|name| {
+            let (pred, truth): (Vec<[f64; 3]>, Vec<[f64; 3]>) = p
+                .indenter
+                .iter()
+                .zip(p.pred.iter().zip(&p.truth))
+                .filter(|(ind, _)| *ind == name)
+                .map(|(_, (a, b))| (*a, *b))
+                .unzip();
+            let n = pred.len().max(1) as f64;
+            IndenterRow {
+                indenter: name.clone(),
+                group: split.group(name).into(),
+                scores: metrics::score_at(&pred, &truth, load),
+                mean_abs_fz: truth.iter().map(|t| t[2].abs()).sum::<f64>() / n,
+                bias: std::array::from_fn(|a| {
+                    pred.iter().zip(&truth).map(|(p, t)| p[a] - t[a]).sum::<f64>() / n
+                }),
+            }
+        })
+        .collect()
+}
+
+/// The per-indenter scores as CSV: R², MAE and bias per axis, the shear-loaded MAE.
+pub fn write_indenter_csv(path: &Path, rows: &[IndenterRow]) -> std::io::Result<()> {
+    let mut s = String::from(
+        "indenter,group,frames,mean_abs_fz_n,r2_fx,r2_fy,r2_fz,mae_fx_n,mae_fy_n,mae_fz_n,\
+         bias_fx_n,bias_fy_n,bias_fz_n,loaded_frames,loaded_mae_fx_n,loaded_mae_fy_n\n",
+    );
+    for r in rows {
+        let c = &r.scores;
+        s.push_str(&format!(
+            "{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{:.4}\n",
+            r.indenter,
+            r.group,
+            c.n,
+            r.mean_abs_fz,
+            c.r2[0],
+            c.r2[1],
+            c.r2[2],
+            c.mae[0],
+            c.mae[1],
+            c.mae[2],
+            r.bias[0],
+            r.bias[1],
+            r.bias[2],
+            c.loaded_n,
+            c.loaded_mae[0],
+            c.loaded_mae[1],
+        ));
+    }
+    std::fs::write(path, s)
 }
 
 pub fn slug(s: &str) -> String {
@@ -450,6 +530,52 @@ pub fn fid_notes(net: &Result<Inception, String>, rows: &[FidRow], cfg: &FidConf
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn per_indenter_scores_show_the_indenter_a_pooled_score_hides() {
+        // The sphere is read exactly; the wave's Fz is read at half its size. Pooled, the
+        // sphere's spread lifts R² Fz; per indenter the wave's bias and R² show it.
+        let mut p = Predictions::default();
+        for k in 0..10 {
+            let fz = -(k as f64);
+            for (name, scale) in [("sphere", 1.0), ("wave", 0.5)] {
+                p.indenter.push(name.into());
+                p.traj.push(0);
+                p.frame.push(k);
+                p.truth.push([0.1 * k as f64, 0.0, fz]);
+                p.pred.push([0.1 * k as f64, 0.0, scale * fz]);
+            }
+        }
+        let split = Split {
+            unseen: vec!["wave".into()],
+            excluded: Vec::new(),
+        };
+        let rows = indenter_rows(&p, &split);
+        let names: Vec<&str> = rows.iter().map(|r| r.indenter.as_str()).collect();
+        assert_eq!(names, ["sphere", "wave"]);
+        let (sphere, wave) = (&rows[0], &rows[1]);
+        assert_eq!((sphere.group.as_str(), wave.group.as_str()), ("seen", "unseen"));
+        assert_eq!(sphere.scores.n, 10);
+        assert_eq!(sphere.scores.r2[2], 1.0);
+        assert_eq!(sphere.bias, [0.0; 3]);
+        assert!((sphere.mean_abs_fz - 4.5).abs() < 1e-12);
+        // Half of Fz = −k: bias +k/2 on average, 2.25 N; R² = 1 − Σ(k/2)² / Σ(k − 4.5)².
+        assert!((wave.bias[2] - 2.25).abs() < 1e-12, "{:?}", wave.bias);
+        let ss_res: f64 = (0..10).map(|k| (k as f64 / 2.0).powi(2)).sum();
+        let ss_tot: f64 = (0..10).map(|k| (k as f64 - 4.5).powi(2)).sum();
+        assert!((wave.scores.r2[2] - (1.0 - ss_res / ss_tot)).abs() < 1e-12);
+        // Shear is read exactly on both: loaded MAE 0 where frames are loaded.
+        assert!(wave.scores.loaded_n > 0);
+        assert_eq!(wave.scores.loaded_mae[0], 0.0);
+        let dir = tempfile::tempdir().unwrap();
+        let csv = dir.path().join("per-indenter.csv");
+        write_indenter_csv(&csv, &rows).unwrap();
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 3);
+        assert!(lines[0].starts_with("indenter,group,frames,"));
+        assert!(lines[2].starts_with("wave,unseen,10,4.5000,"), "{}", lines[2]);
+    }
 
     #[test]
     fn the_force_range_spans_every_trajectory_per_axis() {
