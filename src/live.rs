@@ -93,7 +93,7 @@ pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
 /// which never complete a handshake can hold for [`HANDSHAKE_TIMEOUT`] each.
 pub const MAX_PENDING_HANDSHAKES: usize = 2 * MAX_CLIENTS;
 /// How long a client may go without reading before it is closed: the server pings it
-/// [`PINGS_PER_IDLE`] times per period, and a client that answered none for this long does not
+/// `PINGS_PER_IDLE` times per period, and a client that answered none for this long does not
 /// read its socket (or is gone). Browsers answer pings in their network stack, even for a
 /// background tab, so a Foxglove window left open is never idle; 30 s let a loaded machine
 /// catch up with a burst of image frames first.

@@ -65,8 +65,8 @@ pub struct PredictArgs {
     /// loopback address (default 127.0.0.1:8765).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     pub live: Option<std::net::SocketAddr>,
-    /// Also serve the live view to pages of this origin (SCHEME://HOST[:PORT], e.g.
-    /// https://app.foxglove.dev for Foxglove's web app). Repeatable.
+    /// Also serve the live view to pages of this origin (`SCHEME://HOST[:PORT]`, e.g.
+    /// `https://app.foxglove.dev` for Foxglove's web app). Repeatable.
     #[arg(long, value_name = "ORIGIN", requires = "live")]
     pub live_allow_origin: Vec<crate::live::AllowedOrigin>,
     /// Also write the estimates into this MCAP file (`/predict/wrench`).

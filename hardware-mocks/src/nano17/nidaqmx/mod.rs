@@ -10,7 +10,7 @@
 //! input ranges ±0.2, ±1, ±5 and ±10 V (the smallest that holds the requested span is used, and
 //! a reading clamps at it), 250 kS/s aggregate. The Nano17 is wired the way ATI wires it:
 //! gauges G0..G5 on `ai0`..`ai5`, the thermistor on `ai6`; other inputs read 0 V. The voltages
-//! come from [`SensorModel`] (the simulated Nano17's calibration, zero-load offsets, noise,
+//! come from [`SensorModel`](super::SensorModel) (the simulated Nano17's calibration, zero-load offsets, noise,
 //! thermistor), sampling the true wrench the device's hook gives, or zero without a hook.
 //!
 //! # Timing
