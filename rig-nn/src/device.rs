@@ -73,7 +73,7 @@ pub fn init_params<M: Module>(net: &M) {
 /// joined. Run from outside the pool, each one wakes the sleeping workers and waits for them,
 /// and between them the calling thread is one more runnable thread than there are cores (the
 /// workers yield a while before they sleep). Run on a worker, the step starts each operation
-/// where it already is and shares it with one fewer wake-up. On 2 cores (2026-11-30, AMD EPYC)
+/// where it already is and shares it with one fewer wake-up. On 2 cores (an AMD EPYC VM)
 /// a CycleGAN step of the protocol's shape ran 20 % faster so, and at 1 thread the protocol's
 /// force models 6-24 % faster (docs/experiments.md).
 pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {

@@ -358,7 +358,7 @@ impl Inception {
                 &self.dev,
             );
             // On a pool worker, as the trainer's steps ([`on_pool`]): 32 frames of
-            // 160 × 120 took 2.64 s against 2.76 from the calling thread (2026-11-30, 2 cores).
+            // 160 × 120 took 2.64 s against 2.76 from the calling thread (2 cores).
             let f: Vec<f32> = on_pool(|| {
                 self.forward(x)
                     .into_data()

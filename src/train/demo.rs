@@ -50,32 +50,19 @@ impl DemoPlan {
         if quick {
             Self {
                 seen: vec!["sphere", "hemisphere", "prism"],
-                // Two of the paper's six unseen indenters, as in the full demo. With the cone
-                // alone the unseen group's R² Fz was at the mercy of a small offset: its |Fz|
-                // never exceeds 0.47 N, and one run in six with the one-downsampling generator
-                // gave a negative R² there (2026-11-28) while every other measure held.
+                // Two of the paper's six unseen indenters, as in the full demo: the cone alone
+                // (|Fz| under 0.47 N) leaves the unseen R² Fz at the mercy of a small offset.
                 unseen: vec!["cone", "sphere_s"],
                 directions_deg: vec![0.0, 90.0, 180.0, 270.0],
                 shear_distance_mm: 2.0,
                 camera: (160, 120),
                 fps: 10.0,
                 spec: (32, 24),
-                // R+M, the image as captured (the paper's main modality). Neither modality
-                // makes the quick models transfer shear to the target: source-only learns shear
-                // on its own sensor from the markers (R² Fx, Fy 0.997 on the source's R+M, 0.53
-                // and 0.65 on R, where only the contact's position and its history tell it), but
-                // this small CycleGAN cannot redraw the source's 0.9 mm grid at the target's
-                // 1.1 mm pitch and keep it moving with the gel, and every quick model's shear on
-                // sim-target stays near zero (R² Fx, Fy ≤ 0.1). The pitch is what decides: with
-                // sim-target's hexagons 0.9 mm apart the quick demo learns shear
-                // (docs/experiments.md, *The protocol's runs*). With the reference generator
-                // which one won on Fx and Fy was chance; with one downsampling (`translate`
-                // below) TransForce predicts less spurious shear than source-only and wins them
-                // (the demo test), by as little as ×1.08 on Fx (five runs on 2026-11-28: Fx
-                // ×1.08-1.84, Fy ×1.34-4.4). Normal force does transfer, better from R+M:
-                // on one recorded set, TransForce Fz 0.31 N against source-only 1.51 (R: 0.55
-                // against 3.24; in CI's run on R, 0.49 against 0.75). The full demo and
-                // `rig reproduce` run all three.
+                // R+M, the image as captured (the paper's main modality), which carries normal
+                // force across better than R. No image modality carries shear to sim-target
+                // here: the small translator cannot redraw the source's marker lattice at the
+                // target's pitch (marker flow does carry it). The full demo and `rig reproduce`
+                // run all three. Evidence: docs/experiments.md, *The quick demo's settings*.
                 modalities: vec![Modality::RgbMarker],
                 translate: TranslateConfig {
                     shape: GanShape {
@@ -84,44 +71,26 @@ impl DemoPlan {
                         res_blocks: 2,
                         disc_layers: 2,
                         // One downsampling, not the reference's two: at 32 × 24 two leave an
-                        // 8 × 6 map, coarser than the markers' 3 px pitch (see `GanShape::down`).
-                        // Same cost (the residual blocks see a quarter of the positions at twice
-                        // the channels). Quick demos on 2026-11-28 (release, sim-target, 1200
-                        // translator iterations, seen / unseen): down 2 gave R² Fz 0.4 / 0.33 at
-                        // best over earlier runs and FID ×0.36-0.43; down 1, two runs, R² Fz
-                        // 0.81 / 0.71 and 0.91 / 0.75, FID ×0.35 both; down 0, two runs, R² Fz
-                        // 0.70 / -1.7 and 0.86 / -0.26, FID ×0.58 and ×0.52, but the only
-                        // setting that learnt some shear on sim-target (R² Fx, Fy 0.08 / 0.38 and
-                        // 0.30 / 0.34 seen; with 2400 iterations 0.11 / 0.26, unseen R² Fz 0.66,
-                        // FID ×0.54). On sim-third down 1 learns shear too (R² Fx, Fy 0.45 / 0.43
-                        // seen at 1200 iterations; 0.39-0.59 / 0.30-0.49 in three at 2400). Down 1
-                        // keeps the unseen indenters' Fz (the cone's R² > 0 in 5 of 6 runs) and
-                        // the better FID.
+                        // 8 × 6 map, coarser than the markers' 3 px pitch (see `GanShape::down`),
+                        // at the same cost. It gave the best Fz and FID of 0, 1 and 2
+                        // (docs/experiments.md, *The quick demo's settings*).
                         down: 1,
                     },
                     // Five times the paper's rate: these tiny networks get a few hundred
                     // iterations, not 30 epochs.
                     lr: 1e-3,
                     batch: 4,
-                    // 2400 iterations. At 600 the translated contact patches were still
-                    // smeared, and force models trained on them did not transfer shear. At 1200
-                    // (until 2026-11-28) sim-third's unseen R² Fz fell to −0.48 in one run (FID
-                    // ×0.46 seen); at 2400 three sim-third runs gave 0.75-0.91 (FID ×0.27-0.31),
-                    // and three on sim-target 0.61-0.82 (0.39-0.71 in five at 1200), FID
-                    // ×0.30-0.32. About 80 s more (2400 iterations in 175 s).
+                    // 2400 iterations: at 600 the translated contact patches were still
+                    // smeared, and at 1200 the unseen Fz varied widely from run to run (same
+                    // section of docs/experiments.md).
                     epochs: 12,
                     steps_per_epoch: Some(200),
                     ..TranslateConfig::default()
                 },
-                // 30 epochs, about 360 Adam steps, settled by a cosine decay. Sessions 15-17
-                // trained 60 (720 steps) so that every model learnt shear on its own sensor (at
-                // 430 steps whether the LSTM model had learnt it varied from run to run). But no
-                // quick model transfers shear to the target anyway (see `modalities` above), and
-                // what CI asserts, normal force and |F|, is learnt in the first half (release
-                // runs, target sensor, all frames: TransForce Fz MAE 0.43 N against source-only
-                // 1.31 and R² Fz 0.44 at 30 epochs; 0.32 against 1.25 and 0.61 at 60). Halving the
-                // training took the demo from 1082 to 742 s. The full demo and `rig reproduce`
-                // train longer.
+                // 30 epochs, about 360 Adam steps, settled by a cosine decay: what CI asserts
+                // (normal force, |F|, marker flow's shear) is learnt by then; 60 epochs cost
+                // half as much time again for little (same section of docs/experiments.md).
+                // The full demo and `rig reproduce` train longer.
                 force: ForceConfig {
                     depth: Depth::R18,
                     width: 8,

@@ -217,7 +217,11 @@ pub fn indenter_rows(p: &Predictions, split: &Split) -> Vec<IndenterRow> {
                 scores: metrics::score_at(&pred, &truth, load),
                 mean_abs_fz: truth.iter().map(|t| t[2].abs()).sum::<f64>() / n,
                 bias: std::array::from_fn(|a| {
-                    pred.iter().zip(&truth).map(|(p, t)| p[a] - t[a]).sum::<f64>() / n
+                    pred.iter()
+                        .zip(&truth)
+                        .map(|(p, t)| p[a] - t[a])
+                        .sum::<f64>()
+                        / n
                 }),
             }
         })
@@ -554,7 +558,10 @@ mod tests {
         let names: Vec<&str> = rows.iter().map(|r| r.indenter.as_str()).collect();
         assert_eq!(names, ["sphere", "wave"]);
         let (sphere, wave) = (&rows[0], &rows[1]);
-        assert_eq!((sphere.group.as_str(), wave.group.as_str()), ("seen", "unseen"));
+        assert_eq!(
+            (sphere.group.as_str(), wave.group.as_str()),
+            ("seen", "unseen")
+        );
         assert_eq!(sphere.scores.n, 10);
         assert_eq!(sphere.scores.r2[2], 1.0);
         assert_eq!(sphere.bias, [0.0; 3]);
@@ -574,7 +581,11 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 3);
         assert!(lines[0].starts_with("indenter,group,frames,"));
-        assert!(lines[2].starts_with("wave,unseen,10,4.5000,"), "{}", lines[2]);
+        assert!(
+            lines[2].starts_with("wave,unseen,10,4.5000,"),
+            "{}",
+            lines[2]
+        );
     }
 
     #[test]

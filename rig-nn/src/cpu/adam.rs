@@ -5,8 +5,8 @@
 //! the moments, a square, a square root, a division, the step), each a pass over the parameter
 //! that allocates its result. On the flex backend each is single-threaded and runs on the
 //! calling thread while the pool's workers wait: about 1 % of the wall time of a ResNet-34
-//! training step (`rig bench train --speed --size 64x48 --width 16 --batch 8`, Intel VM,
-//! 2026-11-30, main-thread samples of `perf record`). Here the same arithmetic, element by
+//! training step (`rig bench train --speed --size 64x48 --width 16 --batch 8`, an Intel VM,
+//! main-thread samples of `perf record`). Here the same arithmetic, element by
 //! element and in burn's order, is one pass shared out over the pool. The state is burn's
 //! [`AdamState`], so files that hold it read the same. Off the flex device (a GPU), and for the
 //! options this pass does not cover, the step is burn's own.

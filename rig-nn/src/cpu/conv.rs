@@ -693,7 +693,7 @@ pub(super) fn few_outputs(g: &Geom) -> bool {
 /// the images put channels-last once, then a task per tap ([`lanes::tap_grad`]). The unrolled
 /// path's product `dy · colᵀ` has `o` rows: for the head, three rows against a 1568 × 768
 /// unrolling written for them alone. With the input gradient already turned, the head's
-/// backward at batch 4 took 1.4 ms on that product and 0.6 ms with this sum (2026-11-30).
+/// backward at batch 4 took 1.4 ms on that product and 0.6 ms with this sum (docs/experiments.md).
 pub(super) fn few_outputs_weight_grad(g: &Geom, x: &[f32], dy: &[f32]) -> Vec<f32> {
     let (n, c, w, o, k, ho, wo) = (g.n, g.c, g.w, g.o, g.k, g.ho, g.wo);
     let plane = g.h * w;
