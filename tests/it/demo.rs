@@ -6,24 +6,17 @@
 //! a positive R² on Fz over all frames and over the unseen indenters' frames (it learnt normal
 //! force through the translation, and it carries over to indenters it was not trained on;
 //! source-only, trained on the source sensor's colours, has not learnt it for the target).
-//! The unseen group is the cone and sphere_s: with the cone alone (|Fz| under 0.47 N, so a
-//! small offset sends R² below zero) one run in six failed it; with both, five runs on
-//! 2026-11-28 gave 0.39-0.71, and three with the translator's 2400 iterations 0.61-0.82.
+//! The unseen group is the cone and sphere_s (the cone alone, |Fz| under 0.47 N, left its R² at
+//! the mercy of a small offset).
 //!
 //! The marker-displacement method (`marker flow`, trained on the source's recordings without
 //! translation) must carry shear: R² > 0.3 on Fx and Fy, seen and unseen.
 //!
-//! What the TransForce shear comparison shows, and what it does not (it is now made only on an
-//! axis one of the two models learnt, R² > 0): at the quick demo's scale no model on
-//! sim-target learns shear through the translation (R² Fx, Fy ≤ 0; see `DemoPlan::new`).
-//! TransForce wins Fx and Fy because it predicts little shear where source-only predicts shear
-//! that is not there: 0.13-0.16 N against 0.20-0.78 N (all frames), ×1.4 or more, in four
-//! runs with the one-downsampling generator (2026-11-28; one of them with twice the translator
-//! iterations), where with the reference generator's two downsamplings source-only won Fy in 3
-//! of 7 runs. With sphere_s in the unseen group, five more runs (2026-11-28): Fx 0.11-0.14 N
-//! against 0.14-0.26 N (×1.08-1.84), Fy 0.12-0.16 N against 0.18-0.54 N (×1.34-4.4); three
-//! with 2400 translator iterations: Fx ×1.12-2.6, Fy ×1.6-4.9. The Fx margin can be thin: if CI
-//! fails on Fx or Fy here, that is the reason.
+//! The TransForce shear comparison is made only on an axis one of the two models learnt (R² > 0):
+//! at this scale no image model learns sim-target's shear through the translation, and
+//! TransForce wins Fx and Fy by predicting less spurious shear than source-only, by a margin that
+//! can be thin on Fx (as little as ×1.08). If CI fails on Fx or Fy there, that is the reason.
+//! The runs: docs/experiments.md, *The quick demo's settings*.
 
 use std::process::Command;
 
