@@ -1,5 +1,6 @@
-//! How much the gel's shading has changed since the reference frame, on the same grid as the
-//! displacement field: the press the markers' in-plane motion does not show.
+//! How much the gel's shading has changed since the reference frame, on a grid of cells (the
+//! trainer's D+S puts as many cells as the displacement field's over the whole view,
+//! `train::data::SHADING_VIEW_MM`): the press the markers' in-plane motion does not show.
 //!
 //! A nearly incompressible gel pressed straight down hardly moves its surface sideways, so the
 //! displacement field carries little of the normal force; the shading of the pressed region

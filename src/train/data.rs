@@ -32,8 +32,9 @@ pub use prep::{FLOW_VIEW_MM, FramePrep, flow_image};
 
 const CACHE_DIR: &str = ".trainer-cache";
 /// Version 2: R and M derived at the network's size (version 1 derived them from the full
-/// frame), so older caches are rebuilt.
-const CACHE_MAGIC: &[u8; 8] = b"RIGCACH2";
+/// frame). Version 3: D+S's shading over the whole view (`SHADING_VIEW_MM`). Older caches are
+/// rebuilt.
+const CACHE_MAGIC: &[u8; 8] = b"RIGCACH3";
 
 /// The paper's unseen indenter group; `paralines` is left out of training (contact covers the
 /// whole field of view, a failure case of translation).

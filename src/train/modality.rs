@@ -14,8 +14,9 @@
 //!   another without translation. It needs the trajectory's frames in order:
 //!   `data::FramePrep` makes it.
 //! - D+S (`flow+shading`): D with the blue channel carrying how much the gel's shading has
-//!   changed since the first frame ([`crate::markers::Shading`], [`SHADING_LEVELS`]): the normal
-//!   press, which the markers' in-plane motion hardly shows. Unlike D it depends on how strongly
+//!   changed since the first frame ([`crate::markers::Shading`], [`SHADING_LEVELS`]; its cells
+//!   span the whole view, D's the central 8 × 6 mm): the normal press, which the markers'
+//!   in-plane motion hardly shows. Unlike D it depends on how strongly
 //!   a sensor's LEDs shade a slope (×0.6 to ×2.7 of the source's on the simulated targets), so
 //!   it carries normal force between sensors whose shading is alike, and D carries shear.
 

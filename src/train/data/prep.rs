@@ -19,6 +19,8 @@ pub struct FramePrep {
 struct Flow {
     geometry: crate::markers::SensorGeometry,
     grid: crate::markers::GridSpec,
+    /// The shading change's grid: the same cells over [`SHADING_VIEW_MM`].
+    shading_grid: crate::markers::GridSpec,
     tracker: Option<crate::markers::Tracker>,
     shading: Option<crate::markers::Shading>,
 }
@@ -27,6 +29,22 @@ struct Flow {
 /// `markers::GridSpec`'s default area, inside the view of the simulated sensors and of one
 /// with a 1.1–1.2 mm marker pitch.
 pub const FLOW_VIEW_MM: [f64; 2] = [8.0, 6.0];
+
+/// The gel area the shading change (D+S's blue) covers, mm: the whole 10 × 7.5 mm view of the
+/// sensors in use. The shading needs no markers, so it need not stop where the markers' field
+/// does, and the large indenters' rims, which carry their normal force, lie in the outer
+/// millimetre (docs/experiments.md, *Normal force across sensors*).
+pub const SHADING_VIEW_MM: [f64; 2] = [10.0, 7.5];
+
+/// A grid of `nx × ny` cells over `view` mm (the larger spacing of the two axes).
+fn grid_over(view: [f64; 2], nx: usize, ny: usize) -> crate::markers::GridSpec {
+    crate::markers::GridSpec {
+        nx,
+        ny,
+        spacing_mm: (view[0] / nx.max(1) as f64).max(view[1] / ny.max(1) as f64),
+        ..crate::markers::GridSpec::default()
+    }
+}
 
 impl FramePrep {
     /// `optics`: the sensor's (needed for [`Modality::Flow`] only).
@@ -42,18 +60,12 @@ impl FramePrep {
             let geometry =
                 crate::markers::SensorGeometry::from_optics(optics).map_err(anyhow::Error::msg)?;
             let (nx, ny) = (spec.width as usize, spec.height as usize);
-            let spacing_mm =
-                (FLOW_VIEW_MM[0] / nx.max(1) as f64).max(FLOW_VIEW_MM[1] / ny.max(1) as f64);
-            let grid = crate::markers::GridSpec {
-                nx,
-                ny,
-                spacing_mm,
-                ..crate::markers::GridSpec::default()
-            };
+            let grid = grid_over(FLOW_VIEW_MM, nx, ny);
             grid.check().map_err(anyhow::Error::msg)?;
             Some(Flow {
                 geometry,
                 grid,
+                shading_grid: grid_over(SHADING_VIEW_MM, nx, ny),
                 tracker: None,
                 shading: None,
             })
@@ -88,7 +100,7 @@ impl FramePrep {
         let shading = match flow.shading.as_mut() {
             Some(s) => s,
             None => flow.shading.insert(
-                crate::markers::Shading::new(img, &flow.geometry, &flow.grid)
+                crate::markers::Shading::new(img, &flow.geometry, &flow.shading_grid)
                     .map_err(anyhow::Error::msg)?,
             ),
         };
@@ -116,4 +128,47 @@ pub fn flow_image(field: &[[f32; 2]], shading: &[f32]) -> Vec<u8> {
         .enumerate()
         .flat_map(|(k, d)| [level(d[0]), level(d[1]), shade(k)])
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::markers::{SensorGeometry, Shading};
+    use image::RgbImage;
+
+    #[test]
+    fn the_shading_grid_spans_the_whole_view_and_sees_a_change_at_its_edge() {
+        // 32 × 24 cells over 10 × 7.5 mm: 0.3125 mm apart, the outermost centres 0.16 mm in
+        // from a 320 × 240 view's edge at 0.03125 mm/px; the displacement's grid stops 1 mm in.
+        let g = grid_over(SHADING_VIEW_MM, 32, 24);
+        assert_eq!(g.spacing_mm, 0.3125);
+        assert!((g.cell_mm(0, 0)[0] + 4.84375).abs() < 1e-12);
+        assert!((g.cell_mm(31, 23)[1] + 3.59375).abs() < 1e-12);
+        let d = grid_over(FLOW_VIEW_MM, 32, 24);
+        assert_eq!(d.spacing_mm, 0.25);
+
+        // A rim along the view's edge (|x| > 4.8 mm) brightened by 20 %: the shading grid's
+        // edge columns read it; the displacement grid's, whose tents (boxes reaching 0.875 mm)
+        // stop at 4.75 mm, read none of it.
+        let optics = rig_core::optics::OpticsConfig::default();
+        let geom = SensorGeometry::from_optics(&optics).unwrap();
+        let reference = RgbImage::from_pixel(320, 240, image::Rgb([100, 100, 100]));
+        let rim = RgbImage::from_fn(320, 240, |x, _| {
+            let x_mm = (x as f64 + 0.5 - 160.0) * optics.mm_per_px;
+            image::Rgb(if x_mm.abs() > 4.8 { [120; 3] } else { [100; 3] })
+        });
+        let edge = |grid| {
+            let mut s = Shading::new(&reference, &geom, &grid).unwrap();
+            let f = s.field(&rim).unwrap();
+            (0..grid.ny)
+                .map(|j| f[j * grid.nx])
+                .fold(f32::MAX, f32::min)
+        };
+        let (whole, inner) = (edge(g), edge(d));
+        assert!(whole > 0.02, "the whole view's edge column reads {whole}");
+        assert!(
+            inner < 1e-6,
+            "the displacement grid's edge column reads {inner}"
+        );
+    }
 }
