@@ -58,6 +58,11 @@ pub struct PredictArgs {
     /// No tare (default for --replay, whose numbers must be `rig eval`'s).
     #[arg(long)]
     pub no_tare: bool,
+    /// D+S models: scale the camera's shading change by G to the training sensor's scale
+    /// (`rig eval` prints the gain it finds for a recorded dataset of this sensor; a replay
+    /// finds it itself). Default 1.
+    #[arg(long, value_name = "G", conflicts_with = "replay")]
+    pub shading_gain: Option<f64>,
     /// Frames whose estimates make the tare.
     #[arg(long, value_name = "N", default_value_t = DEFAULT_TARE_FRAMES)]
     pub tare_frames: usize,
@@ -123,6 +128,31 @@ pub fn run(args: &PredictArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A replay's shading gain: `rig eval`'s for the dataset with the paper's split (the same
+/// frames, so the same numbers).
+fn replay_shading_gain(info: &crate::train::force::ModelInfo, dir: &Path) -> anyhow::Result<f64> {
+    use crate::train::data;
+    if info.spec.modality != crate::train::modality::Modality::FlowShading
+        || info.shading_mean.is_none()
+    {
+        return Ok(1.0);
+    }
+    let split = data::Split::default();
+    let set = if data::has_forces(dir)? {
+        data::load_eval(dir, &info.spec, false)?
+    } else {
+        // No forces: the same frames as eval would read, without their labels.
+        let u = data::load_unlabelled(dir, &info.spec, false)?;
+        let forces = u
+            .trajectories
+            .iter()
+            .map(|t| vec![[0.0; 3]; t.frames])
+            .collect();
+        data::EvalSet::from_parts(u.spec, u.trajectories, forces)?
+    };
+    Ok(set.shading_gain_for(info.shading_mean, &split))
+}
+
 /// `rig predict` without the printing of the summary (for tests).
 pub fn predict(args: &PredictArgs) -> anyhow::Result<Summary> {
     let replay = args.replay.is_some();
@@ -148,7 +178,16 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<Summary> {
         marker: config.as_ref().map(marker_of).unwrap_or_default(),
         optics: config.as_ref().and_then(|c| c.optics.clone()),
     };
-    let predictor = Predictor::load(&args.model, opts)?;
+    let mut predictor = Predictor::load(&args.model, opts)?;
+    let gain = match (&args.replay, args.shading_gain) {
+        (_, Some(g)) => g,
+        (Some(dir), None) => replay_shading_gain(predictor.info(), dir)?,
+        (None, None) => 1.0,
+    };
+    predictor.set_shading_gain(gain)?;
+    if gain != 1.0 {
+        eprintln!("the shading change scaled ×{gain:.3} to the training sensor's");
+    }
     if let Some(cam) = config.as_ref().and_then(|c| c.camera.as_ref()) {
         predictor
             .check_frame_size(cam.width_px, cam.height_px)

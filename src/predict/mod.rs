@@ -135,6 +135,9 @@ pub fn default_stride(info: &ModelInfo) -> anyhow::Result<usize> {
 /// The library entry point: a model directory loaded, frames in, force estimates out.
 pub struct Predictor {
     model: ForceModel,
+    /// D+S: the factor on the shading change that brings this sensor's to the training
+    /// sensor's scale ([`Self::set_shading_gain`]); 1 otherwise.
+    shading_gain: f64,
     marker: MarkerParams,
     optics: Option<rig_core::optics::OpticsConfig>,
     /// How the trajectory under way's frames become the network's input (made at its first
@@ -168,6 +171,7 @@ impl Predictor {
         };
         Ok(Self {
             model,
+            shading_gain: 1.0,
             marker: opts.marker,
             optics: opts.optics,
             prep: None,
@@ -238,6 +242,17 @@ impl Predictor {
         check_frame_size(&self.spec(), width, height)
     }
 
+    /// A D+S model: scale the camera's shading change by `gain` (positive, finite), as
+    /// `rig eval` does for a sensor whose shading is weaker or stronger than the training
+    /// sensor's ([`crate::train::data::shading_gain`]). Other models ignore it.
+    pub fn set_shading_gain(&mut self, gain: f64) -> anyhow::Result<()> {
+        if !(gain > 0.0 && gain.is_finite()) {
+            bail!("the shading gain must be positive and finite, not {gain}");
+        }
+        self.shading_gain = gain;
+        Ok(())
+    }
+
     /// One frame (RGB at the camera's resolution) and its timestamp: the force estimate, or
     /// `None` while the tare is being taken. An error (frame of the wrong size) leaves the
     /// predictor as it was.
@@ -255,7 +270,10 @@ impl Predictor {
             }
             self.prep = Some(FramePrep::new(&spec, self.marker, self.optics.as_ref())?);
         }
-        let px = self.prep.as_mut().expect("made above").next(frame)?;
+        let mut px = self.prep.as_mut().expect("made above").next(frame)?;
+        if self.model.info.spec.modality == crate::train::modality::Modality::FlowShading {
+            crate::train::data::apply_shading_gain(&mut px, self.shading_gain);
+        }
         self.last_times.prepare = t0.elapsed();
         Ok(self.push_prepared(&px, t_ns))
     }

@@ -28,7 +28,10 @@ const PREPARED_FRAMES: &str = "frames.bin";
 mod images;
 mod prep;
 pub use images::{ImageSpec, prepare_image};
-pub use prep::{FLOW_VIEW_MM, FramePrep, flow_image};
+pub use prep::{
+    FLOW_VIEW_MM, FramePrep, SHADING_VIEW_MM, apply_shading_gain, flow_image, mean_shading,
+    shading_gain,
+};
 
 const CACHE_DIR: &str = ".trainer-cache";
 /// Version 2: R and M derived at the network's size (version 1 derived them from the full
@@ -143,6 +146,43 @@ macro_rules! with_forces {
 }
 with_forces!(LabelledSet);
 with_forces!(EvalSet);
+
+impl EvalSet {
+    /// The gain that brings this set's shading change to the scale of a model trained on
+    /// another sensor, [`shading_gain`] of the two [`mean_shading`]s: 1 unless the set is D+S
+    /// and the model records its training set's mean (`trained`). The set's mean is taken over
+    /// the indenters `split` trains on, as the model's was (the translator likewise reads the
+    /// target's seen indenters only), or over all when it has none of them.
+    pub fn shading_gain_for(&self, trained: Option<f64>, split: &Split) -> f64 {
+        if self.spec.modality != Modality::FlowShading {
+            return 1.0;
+        }
+        let seen = |t: &&Trajectory| split.trains_on(&t.indenter);
+        let here = if self.trajectories.iter().any(|t| seen(&t)) {
+            mean_shading(
+                self.trajectories
+                    .iter()
+                    .filter(seen)
+                    .map(|t| t.pixels.as_slice()),
+            )
+        } else {
+            mean_shading(self.trajectories.iter().map(|t| t.pixels.as_slice()))
+        };
+        match (trained, here) {
+            (Some(t), Some(h)) => shading_gain(t, h),
+            _ => 1.0,
+        }
+    }
+
+    /// This set with its shading change scaled by `gain` ([`apply_shading_gain`]).
+    pub fn with_shading_gain(&self, gain: f64) -> EvalSet {
+        let mut set = self.clone();
+        for t in &mut set.trajectories {
+            apply_shading_gain(&mut t.pixels, gain);
+        }
+        set
+    }
+}
 
 impl LabelledSet {
     /// Only the trajectories whose indenter is in the split's seen group.

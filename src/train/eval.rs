@@ -146,6 +146,20 @@ pub fn evaluate_on(
     out: &Path,
     split: &Split,
 ) -> anyhow::Result<(Vec<Row>, Predictions)> {
+    // A D+S model reads another sensor's shading at its training sensor's scale.
+    let gain = set.shading_gain_for(model.info.shading_mean, split);
+    let scaled;
+    let set = if gain == 1.0 {
+        set
+    } else {
+        eprintln!(
+            "{}: the shading change scaled ×{gain:.3} to the training sensor's (mean over {})",
+            model.info.method,
+            data.display()
+        );
+        scaled = set.with_shading_gain(gain);
+        &scaled
+    };
     let p = predict(model, set);
     if p.pred.is_empty() {
         anyhow::bail!(
@@ -585,6 +599,45 @@ mod tests {
             lines[2].starts_with("wave,unseen,10,4.5000,"),
             "{}",
             lines[2]
+        );
+    }
+
+    #[test]
+    fn a_d_s_set_is_scaled_to_the_model_s_shading_and_other_sets_are_not() {
+        use super::super::modality::Modality;
+        let traj = |blue: u8| Trajectory {
+            id: "a".into(),
+            indenter: "sphere".into(),
+            pixels: [128, 128, blue].repeat(4 * 4),
+            frames: 1,
+        };
+        let set = |modality| {
+            let spec = ImageSpec {
+                width: 4,
+                height: 4,
+                modality,
+            };
+            EvalSet::from_parts(spec, vec![traj(20)], vec![vec![[0.0; 3]]]).unwrap()
+        };
+        let ds = set(Modality::FlowShading);
+        // The model's training frames averaged 30 levels; these 20: ×1.5, blue 20 → 30.
+        let trained = 30.0 / super::super::modality::SHADING_LEVELS;
+        let split = Split::default();
+        let g = ds.shading_gain_for(Some(trained), &split);
+        assert!((g - 1.5).abs() < 1e-12, "{g}");
+        let scaled = ds.with_shading_gain(g);
+        assert!(
+            scaled.trajectories[0]
+                .pixels
+                .chunks(3)
+                .all(|p| p == [128, 128, 30])
+        );
+        assert_eq!(scaled.forces(0), ds.forces(0));
+        // A model that records no mean, or another modality: no gain.
+        assert_eq!(ds.shading_gain_for(None, &split), 1.0);
+        assert_eq!(
+            set(Modality::Flow).shading_gain_for(Some(trained), &split),
+            1.0
         );
     }
 

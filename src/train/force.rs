@@ -169,6 +169,11 @@ pub struct ModelInfo {
     /// frames at). Absent in models trained before it was recorded.
     #[serde(default)]
     pub frames_per_trajectory: Option<usize>,
+    /// D+S models: the mean shading change of their training frames
+    /// ([`super::data::mean_shading`]), the scale another sensor's shading is brought to
+    /// ([`super::data::shading_gain`]). Absent for other modalities and older models.
+    #[serde(default)]
+    pub shading_mean: Option<f64>,
 }
 
 /// A trained model, ready to predict (no autodiff).
@@ -331,6 +336,11 @@ fn train_here(
         trained_on: String::new(),
         last_loss: f64::NAN,
         frames_per_trajectory: median(&lengths),
+        shading_mean: if spec.modality == super::modality::Modality::FlowShading {
+            super::data::mean_shading(set.trajectories.iter().map(|t| t.pixels.as_slice()))
+        } else {
+            None
+        },
     };
     // A checkpoint a crash interrupted: an incomplete one is dropped, a complete one installed.
     checkpoint_set(out).recover()?;
@@ -597,6 +607,7 @@ impl ForceModel {
             trained_on: String::new(),
             last_loss: f64::NAN,
             frames_per_trajectory: Some(frames_per_trajectory),
+            shading_mean: None,
         };
         let fast = fast_form(&net);
         Self {
@@ -805,6 +816,7 @@ mod tests {
             trained_on: String::new(),
             last_loss: 0.5,
             frames_per_trajectory: Some(60),
+            shading_mean: None,
         };
         (net, FusedAdam::init(0.9, 0.999), info)
     }

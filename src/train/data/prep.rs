@@ -109,6 +109,44 @@ impl FramePrep {
     }
 }
 
+/// The mean relative shading change over D+S images (their blue channel, [`SHADING_LEVELS`]),
+/// every cell of every frame; `None` for no pixels. A sensor's shading scale: over recordings
+/// of one plan, two sensors' means differ by how strongly their LEDs shade the same slopes.
+pub fn mean_shading<'a>(images: impl IntoIterator<Item = &'a [u8]>) -> Option<f64> {
+    let (mut sum, mut n) = (0u64, 0u64);
+    for px in images {
+        for p in px.chunks_exact(3) {
+            sum += u64::from(p[2]);
+            n += 1;
+        }
+    }
+    (n > 0).then(|| sum as f64 / n as f64 / SHADING_LEVELS)
+}
+
+/// The gain that brings a sensor's shading to the scale of the sensor a model was trained on:
+/// the ratio of their [`mean_shading`] over recordings of the same plan (no labels needed). 1
+/// when either mean is zero or not finite.
+pub fn shading_gain(trained: f64, sensor: f64) -> f64 {
+    let g = trained / sensor;
+    if trained > 0.0 && sensor > 0.0 && g.is_finite() {
+        g
+    } else {
+        1.0
+    }
+}
+
+/// Scales the shading change (blue) of D+S images by `gain`, rounded and clamped to a byte.
+/// The same on every path that feeds a model (`rig eval`, `rig predict`), so they agree frame
+/// for frame.
+pub fn apply_shading_gain(pixels: &mut [u8], gain: f64) {
+    if gain == 1.0 {
+        return;
+    }
+    for p in pixels.chunks_exact_mut(3) {
+        p[2] = (f64::from(p[2]) * gain).round().clamp(0.0, 255.0) as u8;
+    }
+}
+
 /// A displacement field (`[dx, dy]` mm a cell, row-major) as a [`Modality::Flow`] image, with
 /// the shading change (one value a cell, [`SHADING_LEVELS`]) in blue for
 /// [`Modality::FlowShading`]; blue is mid-grey where `shading` has no value (D).
@@ -135,6 +173,27 @@ mod tests {
     use super::*;
     use crate::markers::{SensorGeometry, Shading};
     use image::RgbImage;
+
+    #[test]
+    fn a_weaker_sensor_s_shading_is_brought_to_the_training_sensor_s_scale() {
+        // Two D+S frames of 2 cells: blue 10 and 30 levels (mean 20), then 0 and 40 (mean 20).
+        let a: Vec<u8> = vec![128, 128, 10, 128, 128, 30];
+        let b: Vec<u8> = vec![128, 128, 0, 128, 128, 40];
+        let m = mean_shading([a.as_slice(), b.as_slice()]).unwrap();
+        assert!((m - 20.0 / SHADING_LEVELS).abs() < 1e-12, "{m}");
+        assert_eq!(mean_shading(std::iter::empty::<&[u8]>()), None);
+        // A sensor whose shading runs at 0.64 of the training sensor's gets ×1.5625.
+        let g = shading_gain(m, 0.64 * m);
+        assert!((g - 1.5625).abs() < 1e-12, "{g}");
+        // Nothing to scale by: 1.
+        assert_eq!(shading_gain(m, 0.0), 1.0);
+        assert_eq!(shading_gain(0.0, m), 1.0);
+        assert_eq!(shading_gain(f64::NAN, m), 1.0);
+        // Only blue moves; it rounds and stops at 255.
+        let mut px: Vec<u8> = vec![100, 50, 10, 128, 128, 200];
+        apply_shading_gain(&mut px, 1.5625);
+        assert_eq!(px, [100, 50, 16, 128, 128, 255]);
+    }
 
     #[test]
     fn the_shading_grid_spans_the_whole_view_and_sees_a_change_at_its_edge() {
