@@ -135,22 +135,21 @@ fn replay_shading_gain(info: &crate::train::force::ModelInfo, dir: &Path) -> any
     if info.spec.modality != crate::train::modality::Modality::FlowShading
         || info.shading_mean.is_none()
     {
+        // Nothing to scale: no need to read the recording.
         return Ok(1.0);
     }
-    let split = data::Split::default();
-    let set = if data::has_forces(dir)? {
-        data::load_eval(dir, &info.spec, false)?
+    // The frames eval reads: the labelled ones, or every frame of a recording without forces.
+    let trajectories = if data::has_forces(dir)? {
+        data::load_eval(dir, &info.spec, false)?.trajectories
     } else {
-        // No forces: the same frames as eval would read, without their labels.
-        let u = data::load_unlabelled(dir, &info.spec, false)?;
-        let forces = u
-            .trajectories
-            .iter()
-            .map(|t| vec![[0.0; 3]; t.frames])
-            .collect();
-        data::EvalSet::from_parts(u.spec, u.trajectories, forces)?
+        data::load_unlabelled(dir, &info.spec, false)?.trajectories
     };
-    Ok(set.shading_gain_for(info.shading_mean, &split))
+    Ok(data::shading_gain_of(
+        &info.spec,
+        &trajectories,
+        info.shading_mean,
+        &data::Split::default(),
+    ))
 }
 
 /// `rig predict` without the printing of the summary (for tests).

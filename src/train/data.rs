@@ -147,31 +147,39 @@ macro_rules! with_forces {
 with_forces!(LabelledSet);
 with_forces!(EvalSet);
 
+/// The gain that brings the shading change of `trajectories` (images of `spec`) to the scale of
+/// a model trained on another sensor, [`shading_gain`] of the two [`mean_shading`]s: 1 unless
+/// they are D+S and the model records its training set's mean (`trained`). Their mean is taken
+/// over the indenters `split` trains on, as the model's was (the translator likewise reads the
+/// target's seen indenters only), or over all when there is none of them.
+pub fn shading_gain_of(
+    spec: &ImageSpec,
+    trajectories: &[Trajectory],
+    trained: Option<f64>,
+    split: &Split,
+) -> f64 {
+    fn pixels(t: &Trajectory) -> &[u8] {
+        &t.pixels
+    }
+    if spec.modality != Modality::FlowShading {
+        return 1.0;
+    }
+    let seen = |t: &&Trajectory| split.trains_on(&t.indenter);
+    let here = if trajectories.iter().any(|t| seen(&t)) {
+        mean_shading(trajectories.iter().filter(seen).map(pixels))
+    } else {
+        mean_shading(trajectories.iter().map(pixels))
+    };
+    match (trained, here) {
+        (Some(t), Some(h)) => shading_gain(t, h),
+        _ => 1.0,
+    }
+}
+
 impl EvalSet {
-    /// The gain that brings this set's shading change to the scale of a model trained on
-    /// another sensor, [`shading_gain`] of the two [`mean_shading`]s: 1 unless the set is D+S
-    /// and the model records its training set's mean (`trained`). The set's mean is taken over
-    /// the indenters `split` trains on, as the model's was (the translator likewise reads the
-    /// target's seen indenters only), or over all when it has none of them.
+    /// [`shading_gain_of`] this set's trajectories.
     pub fn shading_gain_for(&self, trained: Option<f64>, split: &Split) -> f64 {
-        if self.spec.modality != Modality::FlowShading {
-            return 1.0;
-        }
-        let seen = |t: &&Trajectory| split.trains_on(&t.indenter);
-        let here = if self.trajectories.iter().any(|t| seen(&t)) {
-            mean_shading(
-                self.trajectories
-                    .iter()
-                    .filter(seen)
-                    .map(|t| t.pixels.as_slice()),
-            )
-        } else {
-            mean_shading(self.trajectories.iter().map(|t| t.pixels.as_slice()))
-        };
-        match (trained, here) {
-            (Some(t), Some(h)) => shading_gain(t, h),
-            _ => 1.0,
-        }
+        shading_gain_of(&self.spec, &self.trajectories, trained, split)
     }
 
     /// This set with its shading change scaled by `gain` ([`apply_shading_gain`]).
