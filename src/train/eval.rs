@@ -27,6 +27,18 @@ pub struct Predictions {
     pub truth: Vec<[f64; 3]>,
 }
 
+impl Predictions {
+    /// The predicted and true forces of the frames whose indenter `keep` accepts.
+    fn frames_where(&self, keep: impl Fn(&str) -> bool) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+        self.indenter
+            .iter()
+            .zip(self.pred.iter().zip(&self.truth))
+            .filter(|(ind, _)| keep(ind))
+            .map(|(_, (a, b))| (*a, *b))
+            .unzip()
+    }
+}
+
 /// Evaluation sequences: every frame of every trajectory scored exactly once, in windows of T
 /// frames in time order that span the trajectory the way the training sequences do.
 ///
@@ -98,13 +110,7 @@ pub fn rows(method: &str, modality: &str, p: &Predictions, split: &Split) -> Vec
     // are scored in.
     let load = metrics::ShearLoad::of(&p.truth);
     for group in ["seen", "unseen", "all"] {
-        let (pred, truth): (Vec<[f64; 3]>, Vec<[f64; 3]>) = p
-            .indenter
-            .iter()
-            .zip(p.pred.iter().zip(&p.truth))
-            .filter(|(ind, _)| group == "all" || split.group(ind) == group)
-            .map(|(_, (a, b))| (*a, *b))
-            .unzip();
+        let (pred, truth) = p.frames_where(|ind| group == "all" || split.group(ind) == group);
         if pred.is_empty() {
             continue;
         }
@@ -217,13 +223,7 @@ pub fn indenter_rows(p: &Predictions, split: &Split) -> Vec<IndenterRow> {
     names
         .into_iter()
         .map(|name| {
-            let (pred, truth): (Vec<[f64; 3]>, Vec<[f64; 3]>) = p
-                .indenter
-                .iter()
-                .zip(p.pred.iter().zip(&p.truth))
-                .filter(|(ind, _)| *ind == name)
-                .map(|(_, (a, b))| (*a, *b))
-                .unzip();
+            let (pred, truth) = p.frames_where(|ind| ind == name);
             let n = pred.len().max(1) as f64;
             IndenterRow {
                 indenter: name.clone(),
