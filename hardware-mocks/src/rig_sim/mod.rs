@@ -308,10 +308,9 @@ impl SimRig {
         )?;
         // The arm's own flange sensor reads the same contact (the reaction on the tool, with
         // the UR5e data sheet's accuracy), from the newest physics step: never a solve on the
-        // controller's tick.
-        let newest = physics.clone();
+        // controller's tick. It holds the physics weakly: the physics' pose source holds the arm.
         ur5e.fit_flange_sensor(FlangeSensor::new(
-            Arc::new(move || newest.latest()),
+            Arc::new(physics.latest_reader()),
             frame,
             UR5E_FLANGE,
             opts.netft_seed ^ FLANGE_SEED,
@@ -470,14 +469,22 @@ impl SimRig {
             ft,
             camera,
         } = self;
-        let flushing = tokio::task::spawn_blocking(move || physics.flush_tapes());
+        // The tapes flush off the runtime, without holding the physics (whose pose source
+        // holds the arm): the arm shuts down now, not once the last tape is on disk.
+        let cache = physics.tape_cache();
+        let flushing = tokio::task::spawn_blocking(move || {
+            if let Some(c) = cache {
+                c.flush();
+            }
+        });
         _runtime_pacer.stop().await;
         drop(camera);
         ft.shutdown().await;
         physics_task.stop().await;
+        drop(physics);
         match Arc::try_unwrap(ur5e) {
             Ok(ur) => ur.shutdown().await,
-            Err(ur) => drop(ur),
+            Err(ur) => ur.halt(),
         }
         let _ = flushing.await;
     }

@@ -398,9 +398,25 @@ impl ContactPhysics {
 
     /// Waits for the contact tapes being written (a no-op without a cache).
     pub fn flush_tapes(&self) {
-        let cache = lock(&self.inner.solver).episode.cache().cloned();
-        if let Some(c) = cache {
+        if let Some(c) = self.tape_cache() {
             c.flush();
+        }
+    }
+
+    /// The contact cache the tapes are written to, if any: flushing it needs no physics.
+    pub fn tape_cache(&self) -> Option<ContactCache> {
+        lock(&self.inner.solver).episode.cache().cloned()
+    }
+
+    /// [`Self::latest`] for a reader that must not keep the physics alive: the UR5e twin's
+    /// flange sensor, whose controller the physics' pose source holds (a strong reference both
+    /// ways would keep the arm ticking, and its RTDE watchdog firing, after the rig is dropped).
+    /// `None` once the physics is gone.
+    pub fn latest_reader(&self) -> impl Fn() -> Option<(u64, Wrench)> + Send + Sync + 'static {
+        let weak = Arc::downgrade(&self.inner);
+        move || {
+            weak.upgrade()
+                .and_then(|inner| ContactPhysics { inner }.latest())
         }
     }
 

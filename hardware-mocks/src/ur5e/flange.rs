@@ -17,6 +17,8 @@
 
 use std::sync::Arc;
 
+use nalgebra::Rotation3;
+
 use rig_core::pose::Pose;
 use rig_core::wrench::Wrench;
 
@@ -50,8 +52,9 @@ pub type ContactWrench = Arc<dyn Fn() -> Option<(u64, Wrench)> + Send + Sync>;
 /// The twin of the flange sensor (see the module doc).
 pub struct FlangeSensor {
     contact: ContactWrench,
-    /// Rotation of the surface frame in the base frame.
-    surface_frame: Pose,
+    /// Rotation of the surface frame in the base frame (worked out once: the sensor is read on
+    /// every controller tick).
+    surface_rotation: Rotation3<f64>,
     spec: FlangeSpec,
     /// Fixed error per axis, N and N·m.
     offset: [f64; 6],
@@ -79,7 +82,7 @@ impl FlangeSensor {
         }
         Self {
             contact,
-            surface_frame,
+            surface_rotation: surface_frame.rotation(),
             spec,
             offset,
             rng,
@@ -89,7 +92,7 @@ impl FlangeSensor {
     /// The true wrench on the tool now, base frame, N and N·m about the TCP.
     pub fn true_wrench(&self) -> [f64; 6] {
         let w = (self.contact)().map(|(_, w)| w).unwrap_or_default();
-        on_tool_in_base(&self.surface_frame, &w)
+        reaction_in_base(&self.surface_rotation, &w)
     }
 
     /// One reading: the true wrench plus the sensor's error.
@@ -118,7 +121,11 @@ impl FlangeSpec {
 /// The wrench on the tool in the base frame (N, N·m) from the wrench `on_gel` (surface frame,
 /// N and N·mm): the reaction, rotated by the surface frame's orientation.
 pub fn on_tool_in_base(surface_frame: &Pose, on_gel: &Wrench) -> [f64; 6] {
-    let r = surface_frame.rotation();
+    reaction_in_base(&surface_frame.rotation(), on_gel)
+}
+
+/// [`on_tool_in_base`] with the surface frame's rotation.
+fn reaction_in_base(r: &Rotation3<f64>, on_gel: &Wrench) -> [f64; 6] {
     let f = r * -nalgebra::Vector3::from(on_gel.force_n);
     let t = r * -nalgebra::Vector3::from(on_gel.torque_nmm) * 1e-3;
     [f.x, f.y, f.z, t.x, t.y, t.z]

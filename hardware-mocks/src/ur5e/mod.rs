@@ -346,12 +346,20 @@ impl Ur5e {
     }
 }
 
-impl Drop for Ur5e {
-    fn drop(&mut self) {
+impl Ur5e {
+    /// Stops every task now, as dropping the last handle does, while other handles remain (a
+    /// consumer still holding the arm for its poses reads the last ones).
+    pub fn halt(&self) {
         self.shared.shutdown.send_replace(true);
         for t in &self.tasks {
             t.abort();
         }
+    }
+}
+
+impl Drop for Ur5e {
+    fn drop(&mut self) {
+        self.halt();
     }
 }
 

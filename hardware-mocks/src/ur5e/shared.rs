@@ -73,15 +73,18 @@ impl Shared {
         while *next <= now {
             let t_ns = *next;
             *next += self.tick_period_ns;
+            // Read before the controller is locked: the reading takes the physics' buffer
+            // lock, which nothing should wait on while holding the controller.
+            let force = self
+                .flange
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .as_mut()
+                .map(FlangeSensor::read);
             let (snap, tip) = {
                 let mut c = self.lock();
-                if let Some(f) = self
-                    .flange
-                    .lock()
-                    .unwrap_or_else(|p| p.into_inner())
-                    .as_mut()
-                {
-                    c.tcp_force = f.read();
+                if let Some(f) = force {
+                    c.tcp_force = f;
                 }
                 let snap = c.tick(t_ns);
                 (Arc::new(snap), c.tip_pose())

@@ -455,6 +455,46 @@ async fn sim_rig_runs_on_a_scaled_clock() {
     rig.shutdown().await;
 }
 
+/// The rig's pieces hold each other (the physics' pose source holds the arm, the arm's flange
+/// sensor reads the physics): neither dropping the rig nor shutting it down may leave the arm
+/// ticking, its RTDE port open and its watchdog stopping a program whose client has gone.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dropped_or_shut_down_sim_rig_leaves_no_arm_running() {
+    let cfg = RigConfig::sim_source();
+    let clock = Clock::scaled(5.0);
+    let start = || {
+        SimRig::start(
+            &cfg,
+            sphere(),
+            clock.clone(),
+            SimRigOptions::for_config(&cfg),
+        )
+    };
+
+    // Dropped: nothing keeps the arm.
+    let rig = start().await.unwrap();
+    clock.sleep(Duration::from_millis(50)).await;
+    let arm = Arc::downgrade(&rig.ur5e_arc());
+    drop(rig);
+    eventually("the dropped rig's arm to be freed", || {
+        arm.upgrade().is_none()
+    })
+    .await;
+
+    // Shut down while something still holds the arm: it stops all the same.
+    let rig = start().await.unwrap();
+    clock.sleep(Duration::from_millis(50)).await;
+    let held = rig.ur5e_arc();
+    let addr = held.rtde_addr();
+    assert!(std::net::TcpStream::connect(addr).is_ok(), "RTDE at {addr}");
+    rig.shutdown().await;
+    eventually("the shut-down arm's RTDE port to close", || {
+        std::net::TcpStream::connect(addr).is_err()
+    })
+    .await;
+    drop(held);
+}
+
 /// Winkler contact physics of a sphere on the sim-source gel, with surface fields; the surface
 /// frame with it.
 fn winkler_sphere(on_demand: bool) -> (Pose, ContactPhysics) {
