@@ -68,6 +68,22 @@ pub fn init_params<M: Module>(net: &M) {
     net.visit(&mut Touch);
 }
 
+/// Every float parameter of `net`, flattened in the order the module visits them: two
+/// networks of one shape are the same network when these are equal (the seeding tests).
+pub fn float_params<M: Module>(net: &M) -> Vec<f32> {
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+            if let Ok(v) = p.val().into_data().try_to_vec::<f32>() {
+                self.0.extend(v);
+            }
+        }
+    }
+    let mut c = Collect(Vec::new());
+    net.visit(&mut c);
+    c.0
+}
+
 /// Runs `work` on a worker thread of rayon's pool, the calling thread waiting for it: for
 /// training loops. A training step is a chain of operations, most shared out over the pool and
 /// joined. Run from outside the pool, each one wakes the sleeping workers and waits for them,

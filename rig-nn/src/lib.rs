@@ -33,7 +33,7 @@ pub mod loss;
 mod testing;
 
 pub use cpu::FusedAdam;
-pub use device::{GPU, build_networks, device, init_params, on_pool};
+pub use device::{GPU, build_networks, device, float_params, init_params, on_pool};
 pub use force_net::{Depth, Encoder, FastEncoder, ForceNet, ForceShape, ResUnit};
 pub use gan::{DiscLayer, Discriminator, DownBlock, GanShape, Generator, ResBlock, UpBlock};
 pub use inception::{FEATURE_DIM, Inception};

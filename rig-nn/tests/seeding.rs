@@ -4,22 +4,8 @@
 //! (outside the lock, as the unit tests' networks do at their first forward pass) would move
 //! the draws under test.
 
-use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::{Device, Distribution, Tensor};
-use rig_nn::{GanShape, Generator, build_networks, init_params};
-
-fn weights<M: Module>(net: &M) -> Vec<f32> {
-    struct Collect(Vec<f32>);
-    impl ModuleVisitor for Collect {
-        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-            self.0
-                .extend(p.val().into_data().try_to_vec::<f32>().unwrap());
-        }
-    }
-    let mut c = Collect(Vec::new());
-    net.visit(&mut c);
-    c.0
-}
+use rig_nn::{GanShape, Generator, build_networks, float_params as weights, init_params};
 
 /// A small generator built as the trainer builds its networks: under the lock, from `seed`,
 /// every parameter drawn before the lock is released.

@@ -718,7 +718,7 @@ pub fn checkpoint_files(dir: &Path) -> Vec<PathBuf> {
 
 #[cfg(test)]
 mod tests {
-    use burn::module::{ModuleVisitor, Param};
+    use rig_nn::float_params as weights;
 
     use super::*;
 
@@ -746,19 +746,6 @@ mod tests {
             ..cfg
         };
         assert!((0..4).all(|e| flat.lr_at(e) == 1e-2));
-    }
-
-    fn weights(net: &ForceNet) -> Vec<f32> {
-        struct Collect(Vec<f32>);
-        impl ModuleVisitor for Collect {
-            fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-                self.0
-                    .extend(p.val().into_data().try_to_vec::<f32>().unwrap());
-            }
-        }
-        let mut c = Collect(Vec::new());
-        net.visit(&mut c);
-        c.0
     }
 
     /// `rig demo` trains two networks side by side. A network's initial weights must be drawn

@@ -112,3 +112,52 @@ pub fn needs_unshare() {
         "this test needs `unshare -rm` and tmpfs mounts (util-linux, user namespaces)"
     );
 }
+
+/// A safety stop's stopping distance, from the run's summary: the arm comes to rest (where the
+/// first retract began) within one more 2 ms controller step at the pressing speed `v_m_s`
+/// plus v²/2a at the stop deceleration, counted from the pose when the stop request reached
+/// the controller; and from the pose the rig held at the crossing, within that plus the
+/// request's latency at `v_m_s` and 6 ms (on a loaded host the rig's newest state at the
+/// crossing can be a few periods old: the rig's latency, not the arm's stopping distance).
+/// Measured from the controller's own pose, not the rig's view of it. Returns the travel
+/// after the request and after the crossing, and the allowance, in metres.
+pub fn assert_stop_travel(
+    stop: &rig::run::safety::SafetyStop,
+    summary: &rig::run::RunSummary,
+    v_m_s: f64,
+) -> (f64, f64, f64) {
+    use rig_core::pose::translation_distance;
+    let reached = stop
+        .reached_controller_ns
+        .expect("the controller never saw the stop request");
+    let latency_s = reached.saturating_sub(stop.detected_ns) as f64 * 1e-9;
+    let rest = summary
+        .retracts
+        .first()
+        .expect("no retract after the stop")
+        .from;
+    let decel = rig::robot::RobotOptions::default().stop_accel_m_s2;
+    let allowed = v_m_s * 2e-3 + v_m_s * v_m_s / (2.0 * decel) + 1e-6;
+    let at_request = stop
+        .tcp_at_controller
+        .expect("no controller pose for the stop request");
+    let travel = translation_distance(&at_request, &rest);
+    assert!(
+        travel <= allowed,
+        "the arm travelled {:.4} mm after the stop request reached the controller; at most \
+         {:.4} mm allowed",
+        travel * 1e3,
+        allowed * 1e3
+    );
+    let at_crossing = stop
+        .tcp_at_detection
+        .expect("no robot state at the crossing");
+    let from_crossing = translation_distance(&at_crossing, &rest);
+    assert!(
+        from_crossing <= allowed + v_m_s * (latency_s + 6e-3),
+        "the arm travelled {:.4} mm after the crossing (request latency {:.2} ms)",
+        from_crossing * 1e3,
+        latency_s * 1e3
+    );
+    (travel, from_crossing, allowed)
+}
