@@ -74,9 +74,9 @@ pub fn float_params<M: Module>(net: &M) -> Vec<f32> {
     struct Collect(Vec<f32>);
     impl ModuleVisitor for Collect {
         fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-            if let Ok(v) = p.val().into_data().try_to_vec::<f32>() {
-                self.0.extend(v);
-            }
+            let v = p.val().into_data().try_to_vec::<f32>();
+            self.0
+                .extend(v.expect("float parameters are stored as f32"));
         }
     }
     let mut c = Collect(Vec::new());

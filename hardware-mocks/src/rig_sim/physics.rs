@@ -396,14 +396,8 @@ impl ContactPhysics {
             .map(ContactCache::stats)
     }
 
-    /// Waits for the contact tapes being written (a no-op without a cache).
-    pub fn flush_tapes(&self) {
-        if let Some(c) = self.tape_cache() {
-            c.flush();
-        }
-    }
-
-    /// The contact cache the tapes are written to, if any: flushing it needs no physics.
+    /// The contact cache the tapes are written to, if any: flushing it
+    /// ([`ContactCache::flush`]) needs no physics.
     pub fn tape_cache(&self) -> Option<ContactCache> {
         lock(&self.inner.solver).episode.cache().cloned()
     }

@@ -335,18 +335,15 @@ impl Ur5e {
         }
     }
 
-    /// Stop every task and close every socket.
+    /// Stop every task and close every socket, and wait until they have ended.
     pub async fn shutdown(mut self) {
-        self.shared.shutdown.send_replace(true);
+        self.halt();
         for t in self.tasks.drain(..) {
-            t.abort();
             let _ = t.await;
         }
         tracing::info!("simulated UR5e shut down");
     }
-}
 
-impl Ur5e {
     /// Stops every task now, as dropping the last handle does, while other handles remain (a
     /// consumer still holding the arm for its poses reads the last ones).
     pub fn halt(&self) {
