@@ -11,7 +11,6 @@
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
@@ -22,22 +21,17 @@ use crate::record::channels::{TOPIC_IMAGE, TOPIC_PAIRED};
 use crate::record::manifest::{Manifest, Status};
 use crate::record::reader::{self, Message};
 
-/// Name of a prepared dataset's index.
-pub const PREPARED_INDEX: &str = "prepared.json";
-const PREPARED_FRAMES: &str = "frames.bin";
+mod cache;
 mod images;
 mod prep;
+mod prepared;
 pub use images::{ImageSpec, prepare_image};
 pub use prep::{
     FLOW_VIEW_MM, FramePrep, SHADING_VIEW_MM, apply_shading_gain, flow_image, mean_shading,
-    shading_gain,
+    mirror_flow_image, shading_gain,
 };
-
-const CACHE_DIR: &str = ".trainer-cache";
-/// Version 2: R and M derived at the network's size (version 1 derived them from the full
-/// frame). Version 3: D+S's shading over the whole view (`SHADING_VIEW_MM`). Older caches are
-/// rebuilt.
-const CACHE_MAGIC: &[u8; 8] = b"RIGCACH3";
+use prepared::load_prepared;
+pub use prepared::{PREPARED_INDEX, write_prepared};
 
 /// The paper's unseen indenter group; `paralines` is left out of training (contact covers the
 /// whole field of view, a failure case of translation).
@@ -285,8 +279,6 @@ fn check_parts(
 
 /// Forces of each trajectory's frames, N.
 type ForceLists = Vec<Vec<[f32; 3]>>;
-/// A cache entry: pixels, frame count, forces.
-type Cached = (Vec<u8>, usize, Option<Vec<[f32; 3]>>);
 
 /// One decoded trajectory with its forces where the file has them.
 struct Loaded {
@@ -321,7 +313,7 @@ pub fn find_runs(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
 /// The role (`source` / `target` / `translated`) of the dataset(s) in `dir`.
 pub fn role_of(dir: &Path) -> anyhow::Result<String> {
     if dir.join(PREPARED_INDEX).is_file() {
-        return Ok(read_prepared_index(dir)?.role);
+        return prepared::prepared_role(dir);
     }
     let mut roles: Vec<String> = find_runs(dir)?
         .iter()
@@ -569,31 +561,9 @@ fn load_trajectory(
 ) -> anyhow::Result<Loaded> {
     let want_forces = want == Want::Paired { forces: true };
     let every_frame = want == Want::EveryFrame;
-    let meta = fs::metadata(path)?;
-    let stamp = (
-        meta.len(),
-        meta.modified()
-            .ok()
-            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-            .map_or(0, |d| d.as_nanos() as u64),
-    );
-    let cache = path
-        .parent()
-        .unwrap_or(Path::new("."))
-        .join(CACHE_DIR)
-        .join(format!(
-            "{id}-{}x{}-{}{}{}.bin",
-            spec.width,
-            spec.height,
-            spec.modality.name().replace('+', "_"),
-            if zoom == 1.0 {
-                String::new()
-            } else {
-                format!("-zoom{zoom:.4}")
-            },
-            if every_frame { "-unpaired" } else { "" }
-        ));
-    if let Some((pixels, frames, forces)) = read_cache(&cache, stamp, spec) {
+    let stamp = cache::stamp(path)?;
+    let cache = cache::path_for(path, id, spec, zoom, every_frame);
+    if let Some((pixels, frames, forces)) = cache::read(&cache, stamp, spec) {
         return Ok(Loaded {
             traj: Trajectory {
                 id: id.into(),
@@ -645,7 +615,7 @@ fn load_trajectory(
         }
     }
     let frames = images.len();
-    write_cache(&cache, stamp, spec, &pixels, frames, &forces);
+    cache::write(&cache, stamp, spec, &pixels, frames, &forces);
     Ok(Loaded {
         traj: Trajectory {
             id: id.into(),
@@ -655,205 +625,6 @@ fn load_trajectory(
         },
         forces: want_forces.then_some(forces),
     })
-}
-
-fn read_cache(path: &Path, stamp: (u64, u64), spec: &ImageSpec) -> Option<Cached> {
-    let mut f = fs::File::open(path).ok()?;
-    let mut buf = Vec::new();
-    f.read_to_end(&mut buf).ok()?;
-    let head = 8 + 8 * 3 + 4 * 2;
-    if buf.len() < head || &buf[..8] != CACHE_MAGIC {
-        return None;
-    }
-    let u64_at = |o: usize| u64::from_le_bytes(buf[o..o + 8].try_into().expect("8 bytes"));
-    let (len, mtime, frames) = (u64_at(8), u64_at(16), u64_at(24) as usize);
-    let w = u32::from_le_bytes(buf[32..36].try_into().ok()?);
-    let h = u32::from_le_bytes(buf[36..40].try_into().ok()?);
-    if (len, mtime) != stamp || (w, h) != (spec.width, spec.height) {
-        return None;
-    }
-    let px = frames.checked_mul(spec.frame_bytes())?;
-    // Forces follow the pixels, or none at all (frames recorded without an F/T sensor).
-    let labelled = buf.len() == head + px + frames * 12;
-    if !labelled && buf.len() != head + px {
-        return None;
-    }
-    let pixels = buf[head..head + px].to_vec();
-    if !labelled {
-        return Some((pixels, frames, None));
-    }
-    let forces = buf[head + px..]
-        .chunks_exact(12)
-        .map(|c| {
-            let v = |k: usize| f32::from_le_bytes(c[k * 4..k * 4 + 4].try_into().expect("4 bytes"));
-            [v(0), v(1), v(2)]
-        })
-        .collect();
-    Some((pixels, frames, Some(forces)))
-}
-
-/// Best effort: a cache that cannot be written only costs decoding time next run.
-fn write_cache(
-    path: &Path,
-    stamp: (u64, u64),
-    spec: &ImageSpec,
-    pixels: &[u8],
-    frames: usize,
-    forces: &[[f32; 3]],
-) {
-    let mut buf = Vec::with_capacity(40 + pixels.len() + forces.len() * 12);
-    buf.extend_from_slice(CACHE_MAGIC);
-    for v in [stamp.0, stamp.1, frames as u64] {
-        buf.extend_from_slice(&v.to_le_bytes());
-    }
-    buf.extend_from_slice(&spec.width.to_le_bytes());
-    buf.extend_from_slice(&spec.height.to_le_bytes());
-    buf.extend_from_slice(pixels);
-    for f in forces {
-        for v in f {
-            buf.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    if let Some(dir) = path.parent() {
-        let _ = fs::create_dir_all(dir);
-    }
-    let _ = crate::durable::write_atomic(path, &buf);
-}
-
-// ---------------------------------------------------------------------------------------------
-// Prepared datasets (the translator's output)
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct PreparedIndex {
-    format: String,
-    /// `translated`: source images in the target's style, with the source forces.
-    role: String,
-    width: u32,
-    height: u32,
-    modality: Modality,
-    trajectories: Vec<PreparedTrajectory>,
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct PreparedTrajectory {
-    id: String,
-    indenter: String,
-    frames: usize,
-    forces: Option<Vec<[f32; 3]>>,
-}
-
-fn read_prepared_index(dir: &Path) -> anyhow::Result<PreparedIndex> {
-    let path = dir.join(PREPARED_INDEX);
-    let text = fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
-    serde_json::from_slice(&text)
-        .with_context(|| format!("{} is not a prepared index", path.display()))
-}
-
-/// Write a labelled set as a prepared dataset (`prepared.json` + `frames.bin`), atomically.
-pub fn write_prepared(dir: &Path, set: &LabelledSet, role: &str) -> anyhow::Result<()> {
-    fs::create_dir_all(dir)?;
-    let index = PreparedIndex {
-        format: "rig-prepared-1".into(),
-        role: role.into(),
-        width: set.spec.width,
-        height: set.spec.height,
-        modality: set.spec.modality,
-        trajectories: set
-            .trajectories
-            .iter()
-            .zip(&set.forces)
-            .map(|(t, f)| PreparedTrajectory {
-                id: t.id.clone(),
-                indenter: t.indenter.clone(),
-                frames: t.frames,
-                forces: Some(f.clone()),
-            })
-            .collect(),
-    };
-    let tmp = dir.join(format!("{PREPARED_FRAMES}.partial"));
-    {
-        let mut f = std::io::BufWriter::new(fs::File::create(&tmp)?);
-        for t in &set.trajectories {
-            f.write_all(&t.pixels)?;
-        }
-        f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-    }
-    fs::rename(&tmp, dir.join(PREPARED_FRAMES))?;
-    crate::durable::write_atomic(
-        &dir.join(PREPARED_INDEX),
-        &serde_json::to_vec_pretty(&index)?,
-    )?;
-    Ok(())
-}
-
-fn load_prepared(dir: &Path, spec: &ImageSpec, want_forces: bool) -> anyhow::Result<Vec<Loaded>> {
-    let index = read_prepared_index(dir)?;
-    let stored = ImageSpec {
-        width: index.width,
-        height: index.height,
-        modality: index.modality,
-    };
-    let all = fs::read(dir.join(PREPARED_FRAMES)).context("cannot read frames.bin")?;
-    let need: usize = index
-        .trajectories
-        .iter()
-        .map(|t| t.frames * stored.frame_bytes())
-        .sum();
-    if all.len() != need {
-        bail!(
-            "{}: frames.bin holds {} bytes, the index needs {need}",
-            dir.display(),
-            all.len()
-        );
-    }
-    if !spec.modality.per_frame() && stored.modality != spec.modality {
-        bail!(
-            "{} holds {} images at {}×{}; marker displacement is measured on recorded frames: \
-             give the recording instead",
-            dir.display(),
-            stored.modality,
-            stored.width,
-            stored.height
-        );
-    }
-    if stored.modality != Modality::RgbMarker && stored.modality != spec.modality {
-        bail!(
-            "{} holds {} images; {} cannot be derived from them",
-            dir.display(),
-            stored.modality,
-            spec.modality
-        );
-    }
-    // Marker dots scale with the image: a recorded 320-px frame has dots of about 5 px radius.
-    let params = MarkerParams::for_dot_radius((5.0 * stored.width as f32 / 320.0).max(0.5));
-    let mut out = Vec::new();
-    let mut off = 0;
-    for t in index.trajectories {
-        let n = t.frames * stored.frame_bytes();
-        let raw = &all[off..off + n];
-        off += n;
-        let pixels = if stored == *spec {
-            raw.to_vec()
-        } else {
-            let mut px = Vec::with_capacity(t.frames * spec.frame_bytes());
-            for chunk in raw.chunks_exact(stored.frame_bytes()) {
-                let img = image::RgbImage::from_raw(stored.width, stored.height, chunk.to_vec())
-                    .context("bad frame size")?;
-                px.extend_from_slice(&prepare_image(&img, spec, &params));
-            }
-            px
-        };
-        out.push(Loaded {
-            traj: Trajectory {
-                id: t.id,
-                indenter: t.indenter,
-                pixels,
-                frames: t.frames,
-            },
-            forces: if want_forces { t.forces } else { None },
-        });
-    }
-    Ok(out)
 }
 
 #[cfg(test)]

@@ -168,11 +168,66 @@ pub fn flow_image(field: &[[f32; 2]], shading: &[f32]) -> Vec<u8> {
         .collect()
 }
 
+/// A D or D+S image (`width × height`, RGB) mirrored left-right when `flip & 1` and top-bottom
+/// when `flip & 2`: the mirror image of the contact, whose x (red) or y (green) displacement
+/// changes sign about mid-grey; the shading (blue) only moves. The grid is centred on the gel
+/// and in its axes, so this is the field a mirrored indenter makes on an isotropic gel (its
+/// force's x or y component negated), up to the LEDs' side in the shading.
+pub fn mirror_flow_image(img: &[u8], width: usize, height: usize, flip: u8) -> Vec<u8> {
+    let neg = |v: u8| (256 - u16::from(v)).min(255) as u8;
+    let mut out = vec![0u8; img.len()];
+    for y in 0..height {
+        let sy = if flip & 2 != 0 { height - 1 - y } else { y };
+        for x in 0..width {
+            let sx = if flip & 1 != 0 { width - 1 - x } else { x };
+            let s = &img[(sy * width + sx) * 3..][..3];
+            let d = &mut out[(y * width + x) * 3..][..3];
+            d[0] = if flip & 1 != 0 { neg(s[0]) } else { s[0] };
+            d[1] = if flip & 2 != 0 { neg(s[1]) } else { s[1] };
+            d[2] = s[2];
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::markers::{SensorGeometry, Shading};
     use image::RgbImage;
+
+    #[test]
+    fn a_mirrored_flow_image_is_the_mirrored_field() {
+        // A 3 × 2 field whose cells all differ; its mirror images made from the mirrored
+        // field itself must equal the mirrored image, and two mirrors undo each other.
+        let field: Vec<[f32; 2]> = (0..6)
+            .map(|k| [0.1 * k as f32 - 0.2, 0.3 - 0.05 * k as f32])
+            .collect();
+        let shading: Vec<f32> = (0..6).map(|k| 0.02 * k as f32).collect();
+        let img = flow_image(&field, &shading);
+        let at = |x: usize, y: usize| y * 3 + x;
+        for flip in 0..4u8 {
+            let (fx, fy) = (flip & 1 != 0, flip & 2 != 0);
+            let mut mf = vec![[0f32; 2]; 6];
+            let mut ms = vec![0f32; 6];
+            for y in 0..2 {
+                for x in 0..3 {
+                    let (sx, sy) = (if fx { 2 - x } else { x }, if fy { 1 - y } else { y });
+                    let [dx, dy] = field[at(sx, sy)];
+                    mf[at(x, y)] = [if fx { -dx } else { dx }, if fy { -dy } else { dy }];
+                    ms[at(x, y)] = shading[at(sx, sy)];
+                }
+            }
+            let mirrored = mirror_flow_image(&img, 3, 2, flip);
+            assert_eq!(mirrored, flow_image(&mf, &ms), "flip {flip}");
+            assert_eq!(
+                mirror_flow_image(&mirrored, 3, 2, flip),
+                img,
+                "flip {flip} twice"
+            );
+        }
+        assert_eq!(mirror_flow_image(&img, 3, 2, 0), img);
+    }
 
     #[test]
     fn a_weaker_sensor_s_shading_is_brought_to_the_training_sensor_s_scale() {
