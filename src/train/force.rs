@@ -73,6 +73,12 @@ pub struct ForceConfig {
     /// Force range of the sigmoid output, N per axis; from the training labels (with a 5 %
     /// margin) when absent.
     pub range: Option<ForceRange>,
+    /// Marker modalities (D, D+S) only: train on mirror images too. Each sequence is drawn
+    /// as it is, mirrored left-right, top-bottom or both (one of the four at random, the same
+    /// for all its frames), with the force's x or y component negated to match
+    /// ([`super::data::mirror_flow_image`]): new contact shapes from the same recordings.
+    /// The paper's image modalities are never mirrored (their LEDs light from one side).
+    pub mirror: bool,
 }
 
 impl Default for ForceConfig {
@@ -93,6 +99,7 @@ impl Default for ForceConfig {
             optimizer: Optimizer::Adam,
             seed: 1,
             range: None,
+            mirror: false,
         }
     }
 }
@@ -229,26 +236,43 @@ fn new_optimizer(kind: Optimizer) -> ModuleOptimizer {
     }
 }
 
-/// A batch of sequences: images `[B, T, 3, H, W]` and normalised forces `[B, T, 3]`.
+/// A batch of sequences: images `[B, T, 3, H, W]` and normalised forces `[B, T, 3]`. Sequence
+/// `i` is mirrored as `flips[i]` says (see [`ForceConfig::mirror`]; none where `flips` is short).
 fn batch_tensors(
     trajs: &[Trajectory],
     forces: &dyn Fn(usize) -> Vec<[f32; 3]>,
     seqs: &[&Sequence],
+    flips: &[u8],
     spec: &ImageSpec,
     range: &ForceRange,
     dev: &Device,
 ) -> (Tensor<5>, Tensor<3>) {
     let t = seqs.first().map_or(0, |s| s.frames.len());
-    let mut frames: Vec<&[u8]> = Vec::with_capacity(seqs.len() * t);
+    let mut frames: Vec<std::borrow::Cow<[u8]>> = Vec::with_capacity(seqs.len() * t);
     let mut y = Vec::with_capacity(seqs.len() * t * 3);
-    for s in seqs {
+    for (k, s) in seqs.iter().enumerate() {
         let f = forces(s.traj);
+        let flip = flips.get(k).copied().unwrap_or(0);
         for &i in &s.frames {
-            frames.push(trajs[s.traj].frame(i, spec));
-            y.extend_from_slice(&range.normalise(f[i]));
+            let img = trajs[s.traj].frame(i, spec);
+            let mut fi = f[i];
+            if flip == 0 {
+                frames.push(img.into());
+            } else {
+                let (w, h) = (spec.width as usize, spec.height as usize);
+                frames.push(super::data::mirror_flow_image(img, w, h, flip).into());
+                if flip & 1 != 0 {
+                    fi[0] = -fi[0];
+                }
+                if flip & 2 != 0 {
+                    fi[1] = -fi[1];
+                }
+            }
+            y.extend_from_slice(&range.normalise(fi));
         }
     }
-    let x = images_to_tensor(&frames, spec, dev);
+    let refs: Vec<&[u8]> = frames.iter().map(|f| f.as_ref()).collect();
+    let x = images_to_tensor(&refs, spec, dev);
     let [_, c, h, w] = x.dims();
     let b = seqs.len();
     (
@@ -328,9 +352,17 @@ fn train_here(
         method: method.into(),
         spec,
         shape,
-        range: cfg
-            .range
-            .unwrap_or_else(|| ForceRange::from_bounds(set.force_bounds())),
+        range: cfg.range.unwrap_or_else(|| {
+            let mut b = set.force_bounds();
+            if cfg.mirror && !spec.modality.per_frame() {
+                // Mirrored labels negate x and y: the range must hold both signs.
+                for (lo, hi) in &mut b[..2] {
+                    let m = lo.abs().max(hi.abs());
+                    (*lo, *hi) = (-m, m);
+                }
+            }
+            ForceRange::from_bounds(b)
+        }),
         config: cfg.clone(),
         epochs_done: 0,
         trained_on: String::new(),
@@ -385,12 +417,27 @@ fn train_here(
         let mut rng = Rng(cfg.seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9));
         let mut seqs = sample_sequences(&lengths, cfg.seq_len, cfg.per_trajectory, &mut rng);
         rng.shuffle(&mut seqs);
+        // Drawn after the sequences, so that mirroring leaves which sequences are drawn as
+        // they were.
+        let flips: Vec<u8> = if cfg.mirror && !spec.modality.per_frame() {
+            seqs.iter().map(|_| rng.below(4) as u8).collect()
+        } else {
+            Vec::new()
+        };
         let lr = cfg.lr_at(epoch);
         let mut sum = 0.0;
-        for chunk in seqs.chunks(cfg.batch) {
+        for (n, chunk) in seqs.chunks(cfg.batch).enumerate() {
             let refs: Vec<&Sequence> = chunk.iter().collect();
-            let (x, y) =
-                batch_tensors(&set.trajectories, &forces, &refs, &spec, &info.range, &adev);
+            let flips = flips.get(n * cfg.batch..).unwrap_or(&[]);
+            let (x, y) = batch_tensors(
+                &set.trajectories,
+                &forces,
+                &refs,
+                flips,
+                &spec,
+                &info.range,
+                &adev,
+            );
             let loss = gamma_l1(net.forward(x), y, cfg.gamma);
             let value = loss.clone().into_scalar::<f32>() as f64;
             if !value.is_finite() {
@@ -428,7 +475,15 @@ fn train_here(
         // A step can leave weights that are not finite while this epoch's losses were: check
         // before the checkpoint is replaced, so the last good one survives.
         let probe: Vec<&Sequence> = seqs.iter().take(cfg.batch).collect();
-        let (x, _) = batch_tensors(&set.trajectories, &forces, &probe, &spec, &info.range, &dev);
+        let (x, _) = batch_tensors(
+            &set.trajectories,
+            &forces,
+            &probe,
+            &[],
+            &spec,
+            &info.range,
+            &dev,
+        );
         let check = net
             .valid()
             .forward(x)
