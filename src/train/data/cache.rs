@@ -8,7 +8,7 @@ use std::fs;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use super::ImageSpec;
+use super::images::ImageSpec;
 
 const DIR: &str = ".trainer-cache";
 /// Version 2: R and M derived at the network's size (version 1 derived them from the full

@@ -9,7 +9,8 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
-use super::{ImageSpec, LabelledSet, Loaded, Trajectory, prepare_image};
+use super::images::{ImageSpec, prepare_image};
+use super::sets::{LabelledSet, Loaded, Trajectory};
 use crate::train::modality::{MarkerParams, Modality};
 
 /// Name of a prepared dataset's index.
