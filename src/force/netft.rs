@@ -45,6 +45,9 @@ pub async fn resolve(address: &str) -> Result<SocketAddr, FtError> {
         })
 }
 
+/// The receive buffer asked for, bytes (see `open`).
+const RECV_BUFFER: usize = 4 << 20;
+
 /// Connects to the box at `address` and starts streaming.
 pub async fn open(
     address: &str,
@@ -64,8 +67,15 @@ pub async fn open(
     };
     let sock = UdpSocket::bind(bind).await.map_err(io)?;
     sock.connect(addr).await.map_err(io)?;
-    // A big receive buffer: 7 kHz × 36 B is small, but a stalled consumer task must not lose
-    // packets in the kernel.
+    // A big receive buffer: 7 kHz × 36 B is little data, but the kernel charges each datagram
+    // its buffer overhead (about 0.8 kB), so the default (208 KiB) holds only about 40 ms of
+    // records and a consumer stalled longer loses them. 4 MiB (Linux caps it at
+    // net.core.rmem_max) holds about 0.7 s. Loss the kernel causes is still counted, as a gap.
+    if let Err(e) =
+        nix::sys::socket::setsockopt(&sock, nix::sys::socket::sockopt::RcvBuf, &RECV_BUFFER)
+    {
+        tracing::debug!("Net F/T {addr}: receive buffer of {RECV_BUFFER} B not set: {e}");
+    }
     if device_bias {
         let req = RdtRequest {
             command: RdtCommand::SetSoftwareBias,

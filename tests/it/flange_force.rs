@@ -67,7 +67,7 @@ fn a_target_without_an_ft_sensor_records_images_poses_and_stages_along_the_plan(
         .arg(&cfg)
         .arg("--out")
         .arg(&out)
-        .args(["--limit", "2", "--speed-factor", "20"])
+        .args(["--limit", "2", "--speed-factor", "5"])
         .output()
         .unwrap();
     let text = common::output_text(&run);
