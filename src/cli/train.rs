@@ -119,7 +119,7 @@ pub struct ForceArgs {
     /// ResNet depth of the encoder: 18, 34 or 50 (default: the config's, 18; the paper's is 50).
     #[arg(long)]
     pub depth: Option<Depth>,
-    /// Name in result tables (default: from the data and --no-lstm).
+    /// Name in result tables (default: from the data, the modality and --no-lstm).
     #[arg(long)]
     pub method: Option<String>,
     /// Continue from the checkpoint in --out.
@@ -212,15 +212,8 @@ pub fn train(args: &TrainArgs) -> anyhow::Result<()> {
             let spec = cfg.spec(a.modality);
             let set = data::load_labelled(&a.data, &spec, progress)?.seen_only(&cfg.data.split);
             let method = a.method.clone().unwrap_or_else(|| {
-                let base = match data::role_of(&a.data).as_deref() {
-                    Ok("translated") => "TransForce",
-                    _ => "source-only",
-                };
-                if a.no_lstm {
-                    format!("{base} (no LSTM)")
-                } else {
-                    base.to_string()
-                }
+                let role = data::role_of(&a.data).ok();
+                default_method(role.as_deref(), a.modality, a.no_lstm)
             });
             let r = force::train(
                 &set,
@@ -264,4 +257,55 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
     print!("{}", table.markdown());
     println!("results in {}", out.display());
     Ok(())
+}
+
+/// A force model's name in result tables when `--method` gives none, as `rig reproduce` names
+/// its models: a marker-displacement modality (D, D+S) is the marker-flow method whatever it
+/// trains on; an image modality is TransForce on translated data (`role`), else source-only.
+fn default_method(role: Option<&str>, modality: Modality, no_lstm: bool) -> String {
+    let base = if Modality::MARKERS.contains(&modality) {
+        crate::train::demo::METHOD_MARKER_FLOW
+    } else if role == Some("translated") {
+        "TransForce"
+    } else {
+        "source-only"
+    };
+    if no_lstm {
+        format!("{base} (no LSTM)")
+    } else {
+        base.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_is_named_by_its_modality_and_data_as_the_reproduce_names_it() {
+        assert_eq!(
+            default_method(Some("source"), Modality::FlowShading, false),
+            "marker flow"
+        );
+        assert_eq!(
+            default_method(Some("source"), Modality::Flow, true),
+            "marker flow (no LSTM)"
+        );
+        assert_eq!(
+            default_method(Some("translated"), Modality::RgbMarker, false),
+            "TransForce"
+        );
+        assert_eq!(
+            default_method(Some("translated"), Modality::Marker, true),
+            "TransForce (no LSTM)"
+        );
+        assert_eq!(
+            default_method(Some("source"), Modality::Rgb, false),
+            "source-only"
+        );
+        assert_eq!(
+            default_method(None, Modality::Rgb, true),
+            "source-only (no LSTM)"
+        );
+    }
 }
