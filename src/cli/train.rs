@@ -283,29 +283,29 @@ mod tests {
 
     #[test]
     fn a_model_is_named_by_its_modality_and_data_as_the_reproduce_names_it() {
-        assert_eq!(
-            default_method(Some("source"), Modality::FlowShading, false),
-            "marker flow"
-        );
-        assert_eq!(
-            default_method(Some("source"), Modality::Flow, true),
-            "marker flow (no LSTM)"
-        );
-        assert_eq!(
-            default_method(Some("translated"), Modality::RgbMarker, false),
-            "TransForce"
-        );
-        assert_eq!(
-            default_method(Some("translated"), Modality::Marker, true),
-            "TransForce (no LSTM)"
-        );
-        assert_eq!(
-            default_method(Some("source"), Modality::Rgb, false),
-            "source-only"
-        );
-        assert_eq!(
-            default_method(None, Modality::Rgb, true),
-            "source-only (no LSTM)"
-        );
+        for (role, modality, no_lstm, want) in [
+            (Some("source"), Modality::FlowShading, false, "marker flow"),
+            (
+                Some("source"),
+                Modality::Flow,
+                true,
+                "marker flow (no LSTM)",
+            ),
+            (Some("translated"), Modality::RgbMarker, false, "TransForce"),
+            (
+                Some("translated"),
+                Modality::Marker,
+                true,
+                "TransForce (no LSTM)",
+            ),
+            (Some("source"), Modality::Rgb, false, "source-only"),
+            (None, Modality::Rgb, true, "source-only (no LSTM)"),
+        ] {
+            assert_eq!(
+                default_method(role, modality, no_lstm),
+                want,
+                "{role:?} {modality:?}"
+            );
+        }
     }
 }

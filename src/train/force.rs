@@ -334,6 +334,8 @@ fn train_here(
         bail!("lr_final must be positive, finite and at most lr");
     }
     let spec = set.spec;
+    // Only marker displacement is mirrored (`ForceConfig::mirror`).
+    let mirror = cfg.mirror && !spec.modality.per_frame();
     let lengths: Vec<usize> = set.trajectories.iter().map(|t| t.frames).collect();
     if sample_sequences(&lengths, cfg.seq_len, 1, &mut Rng(0)).is_empty() {
         bail!(
@@ -354,7 +356,7 @@ fn train_here(
         shape,
         range: cfg.range.unwrap_or_else(|| {
             let mut b = set.force_bounds();
-            if cfg.mirror && !spec.modality.per_frame() {
+            if mirror {
                 // Mirrored labels negate x and y: the range must hold both signs.
                 for (lo, hi) in &mut b[..2] {
                     let m = lo.abs().max(hi.abs());
@@ -419,7 +421,7 @@ fn train_here(
         rng.shuffle(&mut seqs);
         // Drawn after the sequences, so that mirroring leaves which sequences are drawn as
         // they were.
-        let flips: Vec<u8> = if cfg.mirror && !spec.modality.per_frame() {
+        let flips: Vec<u8> = if mirror {
             seqs.iter().map(|_| rng.below(4) as u8).collect()
         } else {
             Vec::new()
