@@ -407,3 +407,82 @@ fn recorded_datasets_load_through_the_cache_and_target_forces_stay_out_of_traini
         set.forces(1)
     );
 }
+
+/// A D set of four trajectories sheared along +x only: each frame's displacement is uniform,
+/// 0.2 mm per N of shear.
+fn flow_set_sheared_along_plus_x() -> LabelledSet {
+    let spec = ImageSpec {
+        width: W,
+        height: H,
+        modality: Modality::Flow,
+    };
+    let cells = (W * H) as usize;
+    let mut trajs = Vec::new();
+    let mut forces = Vec::new();
+    for k in 0..4 {
+        let f: Vec<[f32; 3]> = (0..12)
+            .map(|i| {
+                let s = (i as f32 / 11.0 * std::f32::consts::PI).sin();
+                [0.8 * s, 0.0, -s]
+            })
+            .collect();
+        let pixels = f
+            .iter()
+            .flat_map(|f| rig::train::data::flow_image(&vec![[0.2 * f[0], 0.2 * f[1]]; cells], &[]))
+            .collect();
+        trajs.push(Trajectory {
+            id: format!("t{k}"),
+            indenter: "sphere".into(),
+            pixels,
+            frames: 12,
+        });
+        forces.push(f);
+    }
+    LabelledSet::from_parts(spec, trajs, forces).unwrap()
+}
+
+#[test]
+fn mirrored_training_holds_both_signs_of_shear_in_its_range_and_leaves_fz_alone() {
+    let _serial = serial();
+    let set = flow_set_sheared_along_plus_x();
+    let mut ranges = Vec::new();
+    for mirror in [false, true] {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = ForceConfig {
+            mirror,
+            ..small_force(true, 1)
+        };
+        force::train(
+            &set,
+            &cfg,
+            "marker flow",
+            dir.path(),
+            false,
+            Progress::Silent,
+        )
+        .unwrap();
+        let model = ForceModel::load(dir.path()).unwrap();
+        let (pred, _) = predict_all(&model, &set);
+        assert!(
+            pred.iter().flatten().all(|v| v.is_finite()),
+            "mirror {mirror}"
+        );
+        ranges.push(model.info.range);
+    }
+    let (plain, mirrored) = (&ranges[0], &ranges[1]);
+    // Labels Fx ∈ [0, m]: the plain range is theirs with a 5 % margin of the span; mirrored
+    // labels reach −m, so the mirrored range is symmetric, with 5 % of 2m beyond each end.
+    let m = set.force_bounds()[0].1;
+    let near = |a: f32, b: f32| (a - b).abs() < 1e-5;
+    assert!(near(set.force_bounds()[0].0, 0.0));
+    assert!(
+        near(plain.lo[0], -0.05 * m) && near(plain.hi[0], 1.05 * m),
+        "{plain:?}"
+    );
+    assert_eq!(mirrored.lo[0], -mirrored.hi[0], "{mirrored:?}");
+    assert!(near(mirrored.hi[0], 1.1 * m), "{mirrored:?}");
+    // Fy is zero everywhere, its own negation: ±0.5 N either way. Fz is never mirrored.
+    assert_eq!((plain.lo[1], plain.hi[1]), (-0.5, 0.5));
+    assert_eq!((mirrored.lo[1], mirrored.hi[1]), (-0.5, 0.5));
+    assert_eq!((plain.lo[2], plain.hi[2]), (mirrored.lo[2], mirrored.hi[2]));
+}
