@@ -63,8 +63,9 @@
 //! # Timing limits
 //!
 //! With [`PhysicsConfig::on_demand`] (the default), a frame asked for at a time past the
-//! newest physics step first steps the physics through the grid ticks up to that time, and at
-//! that time itself if it is off the grid, at the poses the arm had then
+//! newest physics step first steps the physics through the grid ticks up to that time, and
+//! probes that time itself if it is off the grid (a solve from the newest grid step that the
+//! steps after it do not start from), at the poses the arm had then
 //! ([`Ur5e::tip_pose_moving`]: between ticks, where the arm is on its way). A frame thus shows
 //! the contact of its own capture time however late its task ran
 //! ([`PhysicsStats::max_field_age_ns`] says how stale the images were).
@@ -73,13 +74,14 @@
 //! without solving: the pose of the sample is read off the line through the last two steps'
 //! poses and the wrench taken along that line, which follows the motion's own speed (ramps
 //! included). Where the pose leaves that line (a stage starting, a reversal, the first touch)
-//! or runs more than two step spacings past it, the F/T's read steps the physics at its own
-//! pose, after the grid's ticks before it ([`PhysicsStats::off_grid_steps`]; on the cone's
-//! plan about 16 % more steps than the grid's alone). While the indenter rests, the wrench is extrapolated in time along the last two
-//! steps (relaxation). A cheap model (Winkler, Hertz) simply steps at every F/T sample's time.
-//! Steps that cost milliseconds run off the async workers (`block_in_place`), so the controller
-//! and RTDE tasks are never held up by a solve. Without on-demand stepping, the wrench past the
-//! newest step is the newest one (held).
+//! or runs more than 5 µm (or two step spacings) past it, the F/T's read probes the physics at
+//! its own pose, after the grid's ticks before it ([`PhysicsStats::off_grid_steps`]). Only the
+//! grid's steps carry the contact's history (stick, relaxation), so the contact's path does
+//! not depend on when the F/T or the camera asked. While the indenter rests, the wrench is
+//! extrapolated in time along the last two steps (relaxation). A cheap model (Winkler, Hertz)
+//! simply probes at every F/T sample's time. Solves that cost milliseconds run off the async
+//! workers (`block_in_place`), so the controller and RTDE tasks are never held up by one.
+//! Without on-demand stepping, the wrench past the newest step is the newest one (held).
 
 mod config;
 mod lock;

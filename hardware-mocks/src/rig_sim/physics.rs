@@ -7,7 +7,7 @@
 //! # Known limits of the F/T labels
 //!
 //! A frame's true wrench and the F/T's samples come from the same steps, but not always the
-//! same ones, so `rig dataset check` sees the difference. Two causes were closed:
+//! same ones, so `rig dataset check` sees the difference. Three causes were closed:
 //!
 //! - the contact is pressed with the tip where it is at the sample's own instant, between
 //!   the controller's 2 ms ticks ([`Ur5e::tip_pose_moving`](crate::ur5e::Ur5e::tip_pose_moving)),
@@ -15,13 +15,22 @@
 //! - the F/T reads the wrench off the motion's line at most `MAX_LINE_MM` (5 µm, in
 //!   `read_ahead.rs`) past the newest step, and solves beyond it: at the up stage's 5 mm/s
 //!   two physics steps are 100 µm apart, and reading up to two spacings on was 0.5 N off
-//!   where a flat face lifts off.
+//!   where a flat face lifts off;
+//! - only the steps on the clock's grid carry the contact's history; a solve between them
+//!   (an F/T sample's or a frame's instant) is a probe from the newest grid step that leaves
+//!   the history as it was. A contact step depends on its length (see `sim/contact`: the
+//!   contact search lags the friction solve, and iterating the two does not converge), so
+//!   when those solves were steps, each one split the next grid step in two and moved every
+//!   force after it, by when the F/T happened to ask: paralines' reverse stage was 0.14 N
+//!   off. Now the grid's steps are the same whoever asks between them
+//!   (`an_ft_reading_between_the_physics_steps_leaves_the_steps_as_they_were`).
 //!
-//! With both, the largest error over the wave's and the cone's full plans is 0.055 and 0.027 N,
-//! at the Nano17's noise (`docs/experiments.md`, "Labels"). One cause is still open: **a
-//! contact step depends on its length** (see `sim/contact`: the contact search lags the friction
-//! solve, and iterating the two does not converge), so where a slide turns or the whole gel
-//! slides Fz still differs by up to 0.08 N (triangle) and 0.14 N (paralines).
+//! What remains (`docs/experiments.md`, "Labels: solves between the grid's steps become
+//! probes"): a probe just after a grid step does not quite give that step's force (the search ↔
+//! friction loop does not settle), so the force jumps at each grid step, by up to 0.14 N where
+//! paralines slides; and at ×10 the host dates the F/T's samples about 0.2 ms of clock time
+//! late, 0.04–0.05 N where a flat face lifts off. Paralines' and the wave's worst frames are
+//! 0.06–0.10 N off.
 
 use std::collections::VecDeque;
 use std::io;
@@ -68,10 +77,11 @@ pub struct PhysicsStats {
     /// and the pose time of the field it got, ns: how stale the contact in a simulated image
     /// was. A few ms (one controller tick plus the field spacing) when the physics keeps up.
     pub max_field_age_ns: u64,
-    /// F/T reads of the layer model that asked the physics to step at their own pose, off the
-    /// clock's grid: the motion had left the line of the last two steps (a stage start, a
-    /// reversal, the first touch) or run past it. A read may find the step already made (by
-    /// another read at the same controller tick), so this counts requests, not steps.
+    /// F/T reads of the layer model that asked the physics to solve at their own pose, off the
+    /// clock's grid (a probe, which leaves the contact's history as it was): the motion had
+    /// left the line of the last two steps (a stage start, a reversal, the first touch) or
+    /// run past it. A read may find the solve already made (by another read at the same
+    /// controller tick), so this counts requests, not solves.
     pub off_grid_steps: u64,
 }
 
@@ -245,6 +255,16 @@ impl ContactPhysics {
     /// the newest sample adds nothing and returns the newest wrench. On a simulator error the
     /// last wrench is held (and recorded at `t_ns`), and the error returned.
     pub fn update(&self, t_ns: u64, tcp: &Pose) -> Result<Wrench, SimError> {
+        self.step_at(t_ns, tcp, true)
+    }
+
+    /// [`Self::update`], or with `commit` false a probe: the contact at `t_ns` as a step from
+    /// the newest committed one would find it, buffered like a step, but the steps that
+    /// follow start from the committed history as if it had not been asked (see
+    /// [`Simulator::probe`]). The steps on the clock's grid commit; a consumer's step between
+    /// them (an F/T sample or a frame) probes, so what they ask, and when, does not change the
+    /// contact's path.
+    fn step_at(&self, t_ns: u64, tcp: &Pose, commit: bool) -> Result<Wrench, SimError> {
         // Steps are serialised by the solver lock; the results lock is taken only briefly.
         let mut st = lock(&self.inner.solver);
         if let Some((t_last, w)) = self.latest()
@@ -257,17 +277,22 @@ impl ContactPhysics {
         let mut new_field = None;
         let result = if raw.depth_mm > 0.0 {
             self.inner.contact_steps.fetch_add(1, Ordering::Relaxed);
-            st.in_contact = true;
+            if commit {
+                st.in_contact = true;
+            }
             let scene = self.scene_for(tcp);
             let SolverState { sim, episode, .. } = &mut *st;
-            episode
-                .step(sim, &scene, t_ns, self.inner.want_field)
-                .map(|(w, solved, replayed)| {
-                    new_field = solved.map(Arc::new).or(replayed);
-                    wrench_at_tip(&w, raw.depth_mm)
-                })
+            let out = if commit {
+                episode.step(sim, &scene, t_ns, self.inner.want_field)
+            } else {
+                episode.probe(sim, &scene, t_ns, self.inner.want_field)
+            };
+            out.map(|(w, solved, replayed)| {
+                new_field = solved.map(Arc::new).or(replayed);
+                wrench_at_tip(&w, raw.depth_mm)
+            })
         } else {
-            if st.in_contact {
+            if commit && st.in_contact {
                 // The gel is unloaded: no stick/slip state survives lifting off.
                 st.sim.reset();
                 st.episode.end();
@@ -328,7 +353,9 @@ impl ContactPhysics {
 
     /// With [`PhysicsConfig::on_demand`]: when the newest step is older than `t_ns`, steps at
     /// the poses the robot had at the physics ticks (multiples of the period) from the newest
-    /// step up to `t_ns` (at most a second of them), and then at `t_ns` itself when `exact`.
+    /// step up to `t_ns` (at most a second of them), and then probes at `t_ns` itself when
+    /// `exact` (buffered like a step, but the ticks' steps that follow do not start from it:
+    /// [`Self::step_at`]).
     /// A consumer that is on time (the F/T at 1 kHz) thus never leaves a gap in the buffer
     /// while the physics task is late, and a consumer running late (a frame rendered after its
     /// capture time) finds the contact of its own instant. With a cheap model (Winkler,
@@ -366,7 +393,8 @@ impl ContactPhysics {
         off_the_async_workers(|| {
             for t in times {
                 let (t_pose, tcp) = src(t);
-                if let Err(e) = self.update(t_pose, &tcp) {
+                let on_grid = t % period_ns == 0;
+                if let Err(e) = self.step_at(t_pose, &tcp, on_grid) {
                     tracing::debug!("contact physics on demand at {t_pose} ns: {e}");
                 }
             }
@@ -507,7 +535,7 @@ impl ContactPhysics {
     /// [`MAX_LINE_STEPS`](super::read_ahead::MAX_LINE_STEPS)) along that line
     /// ([`read_off_line`]). This follows the motion's speed exactly, ramps included, where an
     /// extrapolation in time would not. Where the pose is off that line (a
-    /// stage starting, a reversal, the first touch), the physics steps at the sample's pose
+    /// stage starting, a reversal, the first touch), the physics probes at the sample's pose
     /// (off the clock's grid, counted in [`PhysicsStats::off_grid_steps`]): several solves per
     /// stage start, as the line's baseline grows. `None`: the buffer answers (see [`Ahead::Buffer`]).
     fn read_ahead(&self, t_ns: u64) -> Option<Wrench> {

@@ -108,6 +108,19 @@ impl Simulator {
         self.contact.reset_history();
     }
 
+    /// [`Self::step`] without advancing the history: the scene at `time_s` as a step from the
+    /// current history would give it, after which the simulator is as it was (the caches
+    /// aside, which hold no state of the contact). What the simulated rig answers for an
+    /// instant between its steps, so that asking does not change the steps that follow.
+    pub fn probe(&mut self, scene: &Scene, time_s: f64) -> Result<SimOutput, SimError> {
+        let history = self.contact.history();
+        let frames = self.frames;
+        let out = self.step(scene, time_s);
+        self.contact.restore_history(history);
+        self.frames = frames;
+        out
+    }
+
     /// Simulates the scene at time `time_s` (seconds on any monotonic clock; only differences
     /// matter, for viscoelastic relaxation), advancing the history.
     pub fn step(&mut self, scene: &Scene, time_s: f64) -> Result<SimOutput, SimError> {

@@ -171,9 +171,9 @@ mod tests {
             }
         }
         // The mean error is the fixed offset, within its bound; the readings scatter about it.
-        for k in 0..6 {
+        for (k, total) in sum.iter().enumerate() {
             let (acc, prec) = UR5E_FLANGE.axis(k);
-            let mean = sum[k] / n as f64;
+            let mean = total / n as f64;
             assert!((mean - s.offset[k]).abs() < 0.05 * prec, "axis {k}");
             assert!(s.offset[k].abs() <= acc - prec + 1e-12);
         }

@@ -718,3 +718,65 @@ async fn the_ur5e_reports_the_contact_as_its_flange_force_within_the_sensors_acc
     );
     rig.shutdown().await;
 }
+
+/// What the F/T asks between the physics' steps must not change the contact's path: the
+/// layer model has history (stick on the gel's material points), and a step depends on its
+/// length, so a step made at an F/T sample's own instant used to split the next grid step in
+/// two and move every force after it. Two physics follow the same press and slide of a
+/// sphere (friction and relaxation on): one is asked only at its 50 Hz grid's ticks, the
+/// other by an F/T at 1 kHz besides, which makes it solve between the ticks wherever the
+/// motion leaves the line of its last steps (the stage's start, the turn into the slide).
+/// The wrench at every tick must be the same, bit for bit, and the F/T's reads must have
+/// solved between the ticks (or this compares nothing).
+#[tokio::test]
+async fn an_ft_reading_between_the_physics_steps_leaves_the_steps_as_they_were() {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    let make = || {
+        ContactPhysics::new(
+            frame,
+            cfg.elastomer.clone(),
+            sphere(),
+            PhysicsConfig::default(),
+            false,
+        )
+        .unwrap()
+    };
+    // 0.4 mm down in 100 ms, then 0.2 mm along x in 100 ms, then resting.
+    let pose_at = move |t_ns: u64| {
+        let t_ms = t_ns as f64 * 1e-6;
+        let depth = 0.4 * (t_ms / 100.0).min(1.0);
+        let x = 0.2 * ((t_ms - 100.0) / 100.0).clamp(0.0, 1.0);
+        (t_ns, pose_above_surface(&frame, x, 0.0, 0.05 - depth))
+    };
+    let (clock, _handle) = Clock::manual();
+    let (grid_only, with_ft) = (make(), make());
+    // The tasks never run (the manual clock stays at 0): every step is asked for below.
+    let _a = grid_only.spawn(clock.clone(), Arc::new(pose_at));
+    let _b = with_ft.spawn(clock.clone(), Arc::new(pose_at));
+    let period_ns = (1e9 / PhysicsConfig::default().rate_hz) as u64;
+    let mut in_contact = 0;
+    for t in (0..=260_000_000u64).step_by(1_000_000) {
+        // The F/T's sample, then the physics task's tick (the sample may have stepped it).
+        let _ = with_ft.wrench_at(t);
+        if t % period_ns == 0 {
+            let (_, tcp) = pose_at(t);
+            let a = grid_only.update(t, &tcp).unwrap();
+            let b = with_ft.update(t, &tcp).unwrap();
+            let solves = with_ft.stats().off_grid_steps;
+            assert_eq!(
+                a.to_array(),
+                b.to_array(),
+                "at {} ms, after {solves} solves between the ticks",
+                t / 1_000_000
+            );
+            in_contact += usize::from(a.force_n[2] < -0.01);
+        }
+    }
+    let off_grid = with_ft.stats().off_grid_steps;
+    assert!(
+        off_grid >= 3,
+        "the F/T solved between the ticks {off_grid} times"
+    );
+    assert!(in_contact >= 10, "{in_contact} ticks in contact");
+}

@@ -403,6 +403,24 @@ impl Episode {
         Ok((out.wrench, out.field, None))
     }
 
+    /// A step at `t_ns` that leaves the episode and the simulator's history as they were
+    /// ([`Simulator::probe`]). While the episode replays tapes, or has not begun and tapes
+    /// could start it, it is a [`Self::step`]: a replayed step is found by where the indenter
+    /// is, so asking it between the grid's steps moves nothing.
+    pub(in crate::rig_sim) fn probe(
+        &mut self,
+        sim: &mut Simulator,
+        scene: &Scene,
+        t_ns: u64,
+        want_field: bool,
+    ) -> Result<StepOut, SimError> {
+        if self.replaying || (self.t0.is_none() && self.cache.is_some()) {
+            return self.step(sim, scene, t_ns, want_field);
+        }
+        let out = sim.probe(scene, t_ns as f64 * 1e-9)?;
+        Ok((out.wrench, out.field, None))
+    }
+
     fn count_solved(&self) {
         if let Some(cache) = &self.cache {
             cache.inner.solved_steps.fetch_add(1, Ordering::Relaxed);

@@ -245,6 +245,7 @@ pub(crate) struct Solved {
     pub field: Option<SurfaceField>,
 }
 
+#[derive(Clone)]
 struct TangentialHistory {
     grid: Grid,
     model: ContactModel,
@@ -263,6 +264,13 @@ struct ViscoHistory {
     time_s: f64,
     f_relaxed: f64,
     memory: f64,
+}
+
+/// A [`ContactEngine`]'s history (friction and relaxation), saved to be put back.
+#[derive(Clone)]
+pub(crate) struct History {
+    friction: Option<TangentialHistory>,
+    visco: Option<ViscoHistory>,
 }
 
 /// The contact stage with its caches and history (owned by a `Simulator`).
@@ -285,6 +293,20 @@ impl ContactEngine {
     pub fn reset_history(&mut self) {
         self.friction = None;
         self.visco = None;
+    }
+
+    /// A copy of the history (the caches are not part of it).
+    pub(crate) fn history(&self) -> History {
+        History {
+            friction: self.friction.clone(),
+            visco: self.visco,
+        }
+    }
+
+    /// Puts back a history saved by [`Self::history`].
+    pub(crate) fn restore_history(&mut self, h: History) {
+        self.friction = h.friction;
+        self.visco = h.visco;
     }
 
     fn cache_for(&mut self, grid: Grid) -> &mut GridCache {
