@@ -25,12 +25,17 @@
 //!   off. Now the grid's steps are the same whoever asks between them
 //!   (`an_ft_reading_between_the_physics_steps_leaves_the_steps_as_they_were`).
 //!
+//! A step does not leave a history that gives its own force back (the search ↔ friction loop
+//! does not settle), so the force jumps where the probes change the history they start from,
+//! by up to 0.14 N where paralines slides. The probes start from the nearest tick's
+//! ([`ContactPhysics::step_at`]), so the jump falls half-way between ticks, away from the
+//! frames of a camera on the grid.
+//!
 //! What remains (`docs/experiments.md`, "Labels: solves between the grid's steps become
-//! probes"): a probe just after a grid step does not quite give that step's force (the search ↔
-//! friction loop does not settle), so the force jumps at each grid step, by up to 0.14 N where
-//! paralines slides; and at ×10 the host dates the F/T's samples about 0.2 ms of clock time
-//! late, 0.04–0.05 N where a flat face lifts off. Paralines' and the wave's worst frames are
-//! 0.06–0.10 N off.
+//! probes"): at ×10 the host dates the F/T's samples about 0.1–0.2 ms of clock time late,
+//! 0.04–0.05 N where a flat face lifts off at 5 mm/s (at ×2 the wave's worst frame is 0.039 N);
+//! and paralines' force is kinked at the micrometre scale where its ridges cross the cells'
+//! sub-samples, 0.1 N from one F/T sample to the next, so its worst frames are 0.06–0.14 N off.
 
 use std::collections::VecDeque;
 use std::io;
@@ -48,7 +53,7 @@ use tokio::task::JoinHandle;
 
 use crate::camera::FrameRenderer;
 use crate::sim::optics::{self, ImageEffects};
-use crate::sim::{ContactModel, IndenterPose, Scene, SimError, Simulator, SurfaceField};
+use crate::sim::{ContactModel, History, IndenterPose, Scene, SimError, Simulator, SurfaceField};
 use crate::truth::WrenchSource;
 
 use super::config::PhysicsConfig;
@@ -117,6 +122,10 @@ struct SolverState {
     /// The unloaded field, computed once (out-of-contact frames).
     flat_field: Option<Arc<SurfaceField>>,
     in_contact: bool,
+    /// The newest committed step's time, and the history it started from (`None` for a step
+    /// out of contact): a probe nearer to that step than to the next tick starts from there
+    /// ([`ContactPhysics::step_at`]).
+    newest_commit: Option<(u64, Option<History>)>,
 }
 
 /// The results side: held only to copy a sample in or out, so a long solve never blocks the
@@ -213,6 +222,7 @@ impl ContactPhysics {
                     episode: Episode::new(cache),
                     flat_field: None,
                     in_contact: false,
+                    newest_commit: None,
                 }),
                 results: Mutex::new(Results {
                     ring: VecDeque::with_capacity(history),
@@ -258,12 +268,19 @@ impl ContactPhysics {
         self.step_at(t_ns, tcp, true)
     }
 
-    /// [`Self::update`], or with `commit` false a probe: the contact at `t_ns` as a step from
-    /// the newest committed one would find it, buffered like a step, but the steps that
-    /// follow start from the committed history as if it had not been asked (see
-    /// [`Simulator::probe`]). The steps on the clock's grid commit; a consumer's step between
-    /// them (an F/T sample or a frame) probes, so what they ask, and when, does not change the
-    /// contact's path.
+    /// [`Self::update`], or with `commit` false a probe: the contact at `t_ns` as a step
+    /// would find it, buffered like a step, but the steps that follow start from the
+    /// committed history as if it had not been asked (see [`Simulator::probe`]). The steps on
+    /// the clock's grid commit; a consumer's step between them (an F/T sample or a frame)
+    /// probes, so what they ask, and when, does not change the contact's path.
+    ///
+    /// A probe starts from the history the *nearest* grid tick's step started from: within
+    /// half a period after the newest step, from the one before it. A step does not leave a
+    /// history that gives its own force back (a probe at the step's own pose from it differs
+    /// by up to 0.14 N on paralines: the search ↔ friction loop does not settle, see
+    /// `sim/contact`), so the force jumps where the probes change their start. Half-way
+    /// between ticks, no frame of a camera on the grid (25 fps on the 50 Hz grid) and none of
+    /// the F/T samples paired with it sees that jump; at the ticks, the force is continuous.
     fn step_at(&self, t_ns: u64, tcp: &Pose, commit: bool) -> Result<Wrench, SimError> {
         // Steps are serialised by the solver lock; the results lock is taken only briefly.
         let mut st = lock(&self.inner.solver);
@@ -281,17 +298,31 @@ impl ContactPhysics {
                 st.in_contact = true;
             }
             let scene = self.scene_for(tcp);
-            let SolverState { sim, episode, .. } = &mut *st;
+            let half_period_ns = (0.5e9 / self.inner.config.rate_hz) as u64;
+            let SolverState {
+                sim,
+                episode,
+                newest_commit,
+                ..
+            } = &mut *st;
             let out = if commit {
+                *newest_commit = Some((t_ns, Some(sim.history())));
                 episode.step(sim, &scene, t_ns, self.inner.want_field)
             } else {
-                episode.probe(sim, &scene, t_ns, self.inner.want_field)
+                let from = match newest_commit {
+                    Some((t, from)) if t_ns < *t + half_period_ns => from.as_ref(),
+                    _ => None,
+                };
+                episode.probe(sim, from, &scene, t_ns, self.inner.want_field)
             };
             out.map(|(w, solved, replayed)| {
                 new_field = solved.map(Arc::new).or(replayed);
                 wrench_at_tip(&w, raw.depth_mm)
             })
         } else {
+            if commit {
+                st.newest_commit = Some((t_ns, None));
+            }
             if commit && st.in_contact {
                 // The gel is unloaded: no stick/slip state survives lifting off.
                 st.sim.reset();

@@ -30,6 +30,7 @@
 //! ([`FrictionModel::Incremental`]) and viscoelastic relaxation need.
 
 pub mod contact;
+pub use contact::History;
 pub mod optics;
 pub mod scene;
 
@@ -108,17 +109,31 @@ impl Simulator {
         self.contact.reset_history();
     }
 
-    /// [`Self::step`] without advancing the history: the scene at `time_s` as a step from the
-    /// current history would give it, after which the simulator is as it was (the caches
-    /// aside, which hold no state of the contact). What the simulated rig answers for an
-    /// instant between its steps, so that asking does not change the steps that follow.
-    pub fn probe(&mut self, scene: &Scene, time_s: f64) -> Result<SimOutput, SimError> {
-        let history = self.contact.history();
+    /// [`Self::step`] without advancing the history: the scene at `time_s` as a step from
+    /// `from` (a history saved by [`Self::history`]; `None`: the current one) would give it,
+    /// after which the simulator is as it was (the caches aside, which hold no state of the
+    /// contact). What the simulated rig answers for an instant between its steps, so that
+    /// asking does not change the steps that follow.
+    pub fn probe(
+        &mut self,
+        from: Option<&History>,
+        scene: &Scene,
+        time_s: f64,
+    ) -> Result<SimOutput, SimError> {
+        let current = self.contact.history();
+        if let Some(h) = from {
+            self.contact.restore_history(h.clone());
+        }
         let frames = self.frames;
         let out = self.step(scene, time_s);
-        self.contact.restore_history(history);
+        self.contact.restore_history(current);
         self.frames = frames;
         out
+    }
+
+    /// A copy of the contact's history (friction and relaxation), for [`Self::probe`].
+    pub fn history(&self) -> History {
+        self.contact.history()
     }
 
     /// Simulates the scene at time `time_s` (seconds on any monotonic clock; only differences

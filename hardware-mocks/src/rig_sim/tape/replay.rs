@@ -9,7 +9,7 @@ use rig_core::wrench::Wrench;
 
 use super::file::{Tape, TapeRecorder, blend};
 use super::{ContactCache, MATCH_MM, MAX_DRIFT_NS, MAX_REST_SLIP_NS, PATH_SLACK_MM, REST_MM};
-use crate::sim::{IndenterPose, Scene, SimError, Simulator, SurfaceField};
+use crate::sim::{History, IndenterPose, Scene, SimError, Simulator, SurfaceField};
 
 /// Where a replay stands on one candidate tape.
 struct Cursor {
@@ -403,13 +403,15 @@ impl Episode {
         Ok((out.wrench, out.field, None))
     }
 
-    /// A step at `t_ns` that leaves the episode and the simulator's history as they were
-    /// ([`Simulator::probe`]). While the episode replays tapes, or has not begun and tapes
-    /// could start it, it is a [`Self::step`]: a replayed step is found by where the indenter
-    /// is, so asking it between the grid's steps moves nothing.
+    /// A step at `t_ns` from the history `from` (`None`: the simulator's own) that leaves the
+    /// episode and the simulator's history as they were ([`Simulator::probe`]). While the
+    /// episode replays tapes, or has not begun and tapes could start it, it is a
+    /// [`Self::step`]: a replayed step is found by where the indenter is, so asking it between
+    /// the grid's steps moves nothing.
     pub(in crate::rig_sim) fn probe(
         &mut self,
         sim: &mut Simulator,
+        from: Option<&History>,
         scene: &Scene,
         t_ns: u64,
         want_field: bool,
@@ -417,7 +419,7 @@ impl Episode {
         if self.replaying || (self.t0.is_none() && self.cache.is_some()) {
             return self.step(sim, scene, t_ns, want_field);
         }
-        let out = sim.probe(scene, t_ns as f64 * 1e-9)?;
+        let out = sim.probe(from, scene, t_ns as f64 * 1e-9)?;
         Ok((out.wrench, out.field, None))
     }
 

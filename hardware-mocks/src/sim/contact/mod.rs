@@ -266,9 +266,10 @@ struct ViscoHistory {
     memory: f64,
 }
 
-/// A [`ContactEngine`]'s history (friction and relaxation), saved to be put back.
+/// The contact's history (stick and slip, relaxation) as a step leaves it, saved to be put
+/// back ([`Simulator::history`](super::Simulator::history)).
 #[derive(Clone)]
-pub(crate) struct History {
+pub struct History {
     friction: Option<TangentialHistory>,
     visco: Option<ViscoHistory>,
 }
