@@ -298,7 +298,7 @@ impl ContactPhysics {
                 st.in_contact = true;
             }
             let scene = self.scene_for(tcp);
-            let half_period_ns = (0.5e9 / self.inner.config.rate_hz) as u64;
+            let half_period_ns = self.half_period_ns();
             let SolverState {
                 sim,
                 episode,
@@ -322,12 +322,12 @@ impl ContactPhysics {
         } else {
             if commit {
                 st.newest_commit = Some((t_ns, None));
-            }
-            if commit && st.in_contact {
-                // The gel is unloaded: no stick/slip state survives lifting off.
-                st.sim.reset();
-                st.episode.end();
-                st.in_contact = false;
+                if st.in_contact {
+                    // The gel is unloaded: no stick/slip state survives lifting off.
+                    st.sim.reset();
+                    st.episode.end();
+                    st.in_contact = false;
+                }
             }
             if self.inner.want_field {
                 let flat = match &st.flat_field {
@@ -380,6 +380,11 @@ impl ContactPhysics {
     /// The newest surface field and the clock time of its pose, if any step made one.
     pub fn latest_field(&self) -> Option<(u64, Arc<SurfaceField>)> {
         lock(&self.inner.results).fields.back().cloned()
+    }
+
+    /// Half a physics period of clock time, ns.
+    fn half_period_ns(&self) -> u64 {
+        (0.5e9 / self.inner.config.rate_hz) as u64
     }
 
     /// With [`PhysicsConfig::on_demand`]: when the newest step is older than `t_ns`, steps at
@@ -612,7 +617,7 @@ impl ContactPhysics {
             if !self.inner.config.on_demand || t_ns == last.t_ns {
                 return last.w;
             }
-            let half_period = (0.5e9 / self.inner.config.rate_hz) as u64;
+            let half_period = self.half_period_ns();
             let Some(before) = ring
                 .iter()
                 .rev()

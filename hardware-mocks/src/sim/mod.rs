@@ -120,13 +120,15 @@ impl Simulator {
         scene: &Scene,
         time_s: f64,
     ) -> Result<SimOutput, SimError> {
-        let current = self.contact.history();
-        if let Some(h) = from {
-            self.contact.restore_history(h.clone());
-        }
+        // The step replaces the history it starts from, so the current one is moved aside
+        // when `from` takes its place, and copied only when the step starts from it.
+        let current = match from {
+            Some(h) => self.contact.replace_history(h.clone()),
+            None => self.contact.history(),
+        };
         let frames = self.frames;
         let out = self.step(scene, time_s);
-        self.contact.restore_history(current);
+        self.contact.replace_history(current);
         self.frames = frames;
         out
     }

@@ -304,10 +304,13 @@ impl ContactEngine {
         }
     }
 
-    /// Puts back a history saved by [`Self::history`].
-    pub(crate) fn restore_history(&mut self, h: History) {
-        self.friction = h.friction;
-        self.visco = h.visco;
+    /// Puts `h` (saved by [`Self::history`]) in place of the history, and gives the one it
+    /// replaced.
+    pub(crate) fn replace_history(&mut self, h: History) -> History {
+        History {
+            friction: std::mem::replace(&mut self.friction, h.friction),
+            visco: std::mem::replace(&mut self.visco, h.visco),
+        }
     }
 
     fn cache_for(&mut self, grid: Grid) -> &mut GridCache {
