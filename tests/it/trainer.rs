@@ -53,18 +53,27 @@ fn frame(f: [f32; 3]) -> Vec<u8> {
 
 /// Four trajectories of 12 frames: press (Fz 0 → −1), shear along one direction, release.
 fn tiny_set() -> LabelledSet {
+    four_presses(spec(), frame, |k, i, s| {
+        let dir = [[1.0f32, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]][k];
+        let shear = if (3..9).contains(&i) { 0.8 * s } else { 0.0 };
+        [shear * dir[0], shear * dir[1], -s]
+    })
+}
+
+/// Four presses of a sphere, 12 frames each: frame `i` of trajectory `k` carries
+/// `force(k, i, s)`, `s` the press's profile sin(π i / 11), and shows `image(force)`.
+fn four_presses(
+    spec: ImageSpec,
+    image: impl Fn([f32; 3]) -> Vec<u8>,
+    force: impl Fn(usize, usize, f32) -> [f32; 3],
+) -> LabelledSet {
     let mut trajs = Vec::new();
     let mut forces = Vec::new();
     for k in 0..4 {
-        let dir = [[1.0f32, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]][k];
         let f: Vec<[f32; 3]> = (0..12)
-            .map(|i| {
-                let s = (i as f32 / 11.0 * std::f32::consts::PI).sin();
-                let shear = if (3..9).contains(&i) { 0.8 * s } else { 0.0 };
-                [shear * dir[0], shear * dir[1], -s]
-            })
+            .map(|i| force(k, i, (i as f32 / 11.0 * std::f32::consts::PI).sin()))
             .collect();
-        let pixels = f.iter().flat_map(|f| frame(*f)).collect();
+        let pixels = f.iter().flat_map(|f| image(*f)).collect();
         trajs.push(Trajectory {
             id: format!("t{k}"),
             indenter: "sphere".into(),
@@ -73,7 +82,7 @@ fn tiny_set() -> LabelledSet {
         });
         forces.push(f);
     }
-    LabelledSet::from_parts(spec(), trajs, forces).unwrap()
+    LabelledSet::from_parts(spec, trajs, forces).unwrap()
 }
 
 fn small_force(lstm: bool, epochs: usize) -> ForceConfig {
@@ -417,28 +426,11 @@ fn flow_set_sheared_along_plus_x() -> LabelledSet {
         modality: Modality::Flow,
     };
     let cells = (W * H) as usize;
-    let mut trajs = Vec::new();
-    let mut forces = Vec::new();
-    for k in 0..4 {
-        let f: Vec<[f32; 3]> = (0..12)
-            .map(|i| {
-                let s = (i as f32 / 11.0 * std::f32::consts::PI).sin();
-                [0.8 * s, 0.0, -s]
-            })
-            .collect();
-        let pixels = f
-            .iter()
-            .flat_map(|f| rig::train::data::flow_image(&vec![[0.2 * f[0], 0.2 * f[1]]; cells], &[]))
-            .collect();
-        trajs.push(Trajectory {
-            id: format!("t{k}"),
-            indenter: "sphere".into(),
-            pixels,
-            frames: 12,
-        });
-        forces.push(f);
-    }
-    LabelledSet::from_parts(spec, trajs, forces).unwrap()
+    four_presses(
+        spec,
+        |f| rig::train::data::flow_image(&vec![[0.2 * f[0], 0.2 * f[1]]; cells], &[]),
+        |_, _, s| [0.8 * s, 0.0, -s],
+    )
 }
 
 #[test]
