@@ -64,9 +64,9 @@ pub struct ForceConfig {
     pub epochs: usize,
     pub batch: usize,
     pub lr: f64,
-    /// With a value: the learning rate decays from `lr` to this over the epochs on a cosine
-    /// (epoch e of E trains at `lr_final + (lr − lr_final) · ½ (1 + cos(π e / E))`), so the
-    /// last epochs settle instead of jumping about at the full rate. None: constant `lr`.
+    /// With a value: the learning rate decays from `lr` to this on a cosine, step by step
+    /// (step k of K trains at `lr_final + (lr − lr_final) · ½ (1 + cos(π k / (K − 1)))`), so the
+    /// last steps settle instead of jumping about at the full rate. None: constant `lr`.
     pub lr_final: Option<f64>,
     pub optimizer: Optimizer,
     pub seed: u64,
@@ -105,14 +105,19 @@ impl Default for ForceConfig {
 }
 
 impl ForceConfig {
-    /// The learning rate of epoch `epoch` (0-based): `lr`, or the cosine decay to `lr_final`.
-    /// A function of the epoch and `epochs` alone, so a run resumed with the same config
-    /// continues the same schedule (resumed with more epochs, the rest of it stretches).
-    pub fn lr_at(&self, epoch: usize) -> f64 {
+    /// The learning rate of step `step` (0-based) of the `steps` in epoch `epoch`: `lr`, or the
+    /// cosine decay to `lr_final` over the whole training, step by step, so that the last step
+    /// trains at `lr_final` however few the epochs (decayed per epoch, two epochs ended at half
+    /// the rate: docs/experiments.md, *A learning rate that settles*). A function of where
+    /// the step is and `epochs` alone, so a run resumed with the same config continues the
+    /// same schedule (resumed with more epochs, the rest of it stretches).
+    pub fn lr_at(&self, epoch: usize, step: usize, steps: usize) -> f64 {
         match self.lr_final {
             None => self.lr,
             Some(end) => {
-                let x = epoch as f64 / self.epochs.max(1) as f64;
+                let steps = steps.max(1);
+                let last = (self.epochs.max(1) * steps).saturating_sub(1).max(1);
+                let x = ((epoch * steps + step.min(steps - 1)) as f64 / last as f64).min(1.0);
                 end + (self.lr - end) * 0.5 * (1.0 + (std::f64::consts::PI * x).cos())
             }
         }
@@ -426,9 +431,10 @@ fn train_here(
         } else {
             Vec::new()
         };
-        let lr = cfg.lr_at(epoch);
         let mut sum = 0.0;
+        let mut lr = cfg.lr;
         for (n, chunk) in seqs.chunks(cfg.batch).enumerate() {
+            lr = cfg.lr_at(epoch, n, steps_per_epoch);
             let refs: Vec<&Sequence> = chunk.iter().collect();
             let flips = flips.get(n * cfg.batch..).unwrap_or(&[]);
             let (x, y) = batch_tensors(
@@ -780,29 +786,32 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_cosine_schedule_runs_from_lr_to_lr_final() {
+    fn the_cosine_schedule_runs_from_lr_to_lr_final_step_by_step() {
         let cfg = ForceConfig {
             lr: 1e-2,
             lr_final: Some(1e-3),
-            epochs: 4,
+            epochs: 3,
             ..ForceConfig::default()
         };
-        let lrs: Vec<f64> = (0..4).map(|e| cfg.lr_at(e)).collect();
-        // ½ (1 + cos(π e / 4)) = 1, 0.853553, 0.5, 0.146447.
-        let want = [
-            1e-2,
-            1e-3 + 9e-3 * 0.853_553_4,
-            5.5e-3,
-            1e-3 + 9e-3 * 0.146_446_6,
-        ];
-        for (a, b) in lrs.iter().zip(want) {
-            assert!((a - b).abs() < 1e-9, "{lrs:?}");
+        // 3 epochs of 3 steps: x = k / 8 for the k-th step overall.
+        let lrs: Vec<f64> = (0..3)
+            .flat_map(|e| (0..3).map(move |n| (e, n)))
+            .map(|(e, n)| cfg.lr_at(e, n, 3))
+            .collect();
+        // ½ (1 + cos(π k / 8)) at k = 0, 4 (epoch 1, step 1) and 8 (the last step).
+        for (k, want) in [(0, 1e-2), (4, 5.5e-3), (8, 1e-3)] {
+            assert!((lrs[k] - want).abs() < 1e-12, "step {k}: {lrs:?}");
         }
+        assert!(lrs.windows(2).all(|w| w[1] < w[0]), "{lrs:?}");
+        // Two epochs end at lr_final too (a schedule per epoch ended them at half the rate).
+        let two = ForceConfig { epochs: 2, ..cfg };
+        assert!((two.lr_at(1, 239, 240) - 1e-3).abs() < 1e-12);
+        assert!((two.lr_at(1, 0, 240) - 1e-2).abs() > 4e-3);
         let flat = ForceConfig {
             lr_final: None,
             ..cfg
         };
-        assert!((0..4).all(|e| flat.lr_at(e) == 1e-2));
+        assert!((0..4).all(|e| flat.lr_at(e, 1, 3) == 1e-2));
     }
 
     /// `rig demo` trains two networks side by side. A network's initial weights must be drawn

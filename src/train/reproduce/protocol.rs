@@ -126,7 +126,9 @@ impl Protocol {
                 // 2 epochs (480 Adam steps of 16 sequences) of the quick demo's force model: normal
                 // force is learnt in that, and a third epoch learnt no shear on the target either.
                 // What stops shear on sim-target is the translation (its markers' pitch), not the
-                // force model (docs/experiments.md, same section).
+                // force model (docs/experiments.md, same section). The rate decays step by step
+                // to the quick demo's lr_final; four epochs read marker flow's shear better and
+                // its Fz no better (*A learning rate that settles*).
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
