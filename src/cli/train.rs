@@ -2,7 +2,7 @@
 //! is [`crate::train`].
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::{Args, Subcommand};
 
@@ -137,7 +137,8 @@ pub struct EvalArgs {
     /// Target-sensor dataset with forces.
     #[arg(long)]
     pub data: PathBuf,
-    /// Where results.md/.csv/.json and the plots go (default: the first model's eval/).
+    /// Where results.md/.csv/.json and the plots go (default: the first model's eval/); with
+    /// several models, each one's plots and per-indenter table go in models/NAME/ there.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Trainer settings (TOML); `rig eval` reads the seen/unseen split from `[data]` (default:
@@ -244,19 +245,53 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| args.model[0].join("eval"));
     let mut table = report::Table::default();
-    for m in &args.model {
+    let dirs = plot_dirs(&out, &args.model);
+    for (m, plots) in args.model.iter().zip(&dirs) {
         table.rows.extend(eval::evaluate(
             m,
             &args.data,
-            &out,
+            plots,
             &cfg.data.split,
             progress,
         )?);
+    }
+    if args.model.len() > 1 {
+        println!(
+            "each model's plots and per-indenter table in {}",
+            out.join("models").display()
+        );
     }
     table.write(&out)?;
     print!("{}", table.markdown());
     println!("results in {}", out.display());
     Ok(())
+}
+
+/// Where each model's plots and per-indenter table go: `out` for one model; for several,
+/// `out/models/NAME` (NAME its directory's name, numbered when two share one), as `rig
+/// reproduce` lays them out, so that models of one method do not overwrite each other's files.
+fn plot_dirs(out: &Path, models: &[PathBuf]) -> Vec<PathBuf> {
+    if models.len() <= 1 {
+        return vec![out.to_path_buf(); models.len()];
+    }
+    let mut used = std::collections::HashSet::new();
+    models
+        .iter()
+        .enumerate()
+        .map(|(k, m)| {
+            let base = m.file_name().map_or_else(
+                || format!("model-{}", k + 1),
+                |n| n.to_string_lossy().into_owned(),
+            );
+            let mut name = base.clone();
+            let mut n = 2;
+            while !used.insert(name.clone()) {
+                name = format!("{base}-{n}");
+                n += 1;
+            }
+            out.join("models").join(name)
+        })
+        .collect()
 }
 
 /// A force model's name in result tables when `--method` gives none, as `rig reproduce` names
@@ -280,6 +315,34 @@ fn default_method(role: Option<&str>, modality: Modality, no_lstm: bool) -> Stri
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn several_models_get_a_plot_folder_each_and_one_model_the_out_folder() {
+        let out = Path::new("/r/eval");
+        assert_eq!(
+            plot_dirs(out, &[PathBuf::from("/m/a")]),
+            vec![out.to_path_buf()]
+        );
+        let dirs = plot_dirs(
+            out,
+            &[
+                PathBuf::from("/m/ds1"),
+                PathBuf::from("/n/ds1"),
+                PathBuf::from("/m/ds2/"),
+                PathBuf::from("/"),
+            ],
+        );
+        assert_eq!(
+            dirs,
+            [
+                "/r/eval/models/ds1",
+                "/r/eval/models/ds1-2",
+                "/r/eval/models/ds2",
+                "/r/eval/models/model-4",
+            ]
+            .map(PathBuf::from)
+        );
+    }
 
     #[test]
     fn a_model_is_named_by_its_modality_and_data_as_the_reproduce_names_it() {
