@@ -5,7 +5,11 @@
 //! - the same for the batch norm with its ReLU ([`rig_nn::cpu::batch_norm_relu`] against burn's
 //!   `BatchNorm::forward` then `relu`);
 //! - the force model's encoder in inference on a batch of frames, compiled
-//!   ([`rig_nn::FastEncoder`]) and as burn runs it ([`rig_nn::ForceNet::encode`]).
+//!   ([`rig_nn::FastEncoder`]) and as burn runs it ([`rig_nn::ForceNet::encode`]);
+//! - FID's Inception-v3 on a batch of 32 × 24 frames ([`rig_nn::Inception::features`], the CPU
+//!   inference form, against [`rig_nn::Inception::burn_features`]), when its weights are where
+//!   `scripts/fetch-inception` puts them (`$RIG_INCEPTION_WEIGHTS`, else
+//!   `${XDG_CACHE_HOME:-~/.cache}/rig/inception-fid.safetensors`); skipped, with a note, if not.
 //!
 //! `cargo bench -p rig-nn` times them; `cargo test --benches` runs each once.
 
@@ -93,5 +97,47 @@ fn encoder(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, convolution, batch_norm, encoder);
+/// The Inception weights file, as `rig::train::inception` finds it by default.
+fn inception_weights() -> std::path::PathBuf {
+    if let Some(p) = std::env::var_os("RIG_INCEPTION_WEIGHTS") {
+        return p.into();
+    }
+    let cache = std::env::var_os("XDG_CACHE_HOME")
+        .map(std::path::PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| std::path::Path::new(&h).join(".cache")))
+        .unwrap_or_default();
+    cache.join("rig").join("inception-fid.safetensors")
+}
+
+fn inception(c: &mut Criterion) {
+    let path = inception_weights();
+    let Ok(bytes) = std::fs::read(&path) else {
+        eprintln!(
+            "Inception bench skipped: no weights at {} (python3 scripts/fetch-inception)",
+            path.display()
+        );
+        return;
+    };
+    let net = rig_nn::Inception::parse(&bytes, &Device::flex()).expect("the Inception weights");
+    let (w, h) = (32, 24);
+    let frames: Vec<Vec<u8>> = (0..8)
+        .map(|i| {
+            (0..w * h * 3)
+                .map(|p| ((p * 7 + i * 13) % 256) as u8)
+                .collect()
+        })
+        .collect();
+    let refs: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
+    let mut g = c.benchmark_group("Inception-v3 features, 8 frames of 32 x 24");
+    g.sample_size(10);
+    g.bench_function("inference form", |b| {
+        b.iter(|| net.features(&refs, w, h, |_| {}).unwrap())
+    });
+    g.bench_function("burn", |b| {
+        b.iter(|| net.burn_features(&refs, w, h, |_| {}).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, convolution, batch_norm, encoder, inception);
 criterion_main!(benches);

@@ -28,6 +28,10 @@
 //! converts them into a safetensors file, which [`Inception::parse`] reads (the rig finds the
 //! file: `rig::train::inception`).
 //!
+//! On the CPU, [`Inception::features`] runs the network compiled for inference (`fast.rs` beside
+//! this file: channels last, one matrix product per convolution, images in parallel); burn's
+//! forward serves the GPU backends.
+//!
 //! The rig's `tests/it/inception.rs` checks our features against the reference
 //! implementation's on fixed images (within 1e-3 relative).
 
@@ -39,6 +43,8 @@ use burn::tensor::ops::{AvgPoolOptions, ConvOptions, MaxPoolOptions};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use crate::device::on_pool;
+
+mod fast;
 
 /// Length of the feature vector (the pool3 layer).
 pub const FEATURE_DIM: usize = 2048;
@@ -252,6 +258,8 @@ pub struct Inception {
     stem: Vec<ConvBn>,
     blocks: Vec<Block>,
     dev: Device,
+    /// The CPU inference form ([`fast`]), which [`Inception::features`] runs; `None` on a GPU.
+    fast: Option<fast::FastInception>,
     /// Images per forward pass.
     pub batch: usize,
 }
@@ -307,10 +315,16 @@ impl Inception {
                 "the last block has {c} channels, not {FEATURE_DIM}"
             ));
         }
+        let fast = if crate::GPU {
+            None
+        } else {
+            fast::FastInception::new(&stem, &blocks)
+        };
         Ok(Self {
             stem,
             blocks,
             dev: l.dev.clone(),
+            fast,
             batch: 16,
         })
     }
@@ -330,25 +344,35 @@ impl Inception {
     }
 
     /// The 2048-d features of RGB frames (HWC bytes, all `width × height`), `self.batch` images
-    /// per forward pass; `tick` is called with the number of images done after each pass.
+    /// at a time; `tick` is called with the number of images done after each batch. On the CPU
+    /// the network's inference form computes them (`inception/fast.rs`: 2.7× faster than
+    /// burn's forward, docs/benchmarks.md), on a GPU burn's forward
+    /// ([`Inception::burn_features`]).
     pub fn features(
         &self,
         frames: &[&[u8]],
         width: usize,
         height: usize,
-        mut tick: impl FnMut(usize),
+        tick: impl FnMut(usize),
     ) -> Result<Vec<Vec<f32>>, String> {
-        if width == 0 || height == 0 {
-            return Err(format!("images of {width} × {height} pixels"));
+        match &self.fast {
+            Some(fast) => self.batched(frames, width, height, tick, |chunk| {
+                Ok(fast.features(chunk, width, height))
+            }),
+            None => self.burn_features(frames, width, height, tick),
         }
-        if let Some(i) = frames.iter().position(|f| f.len() != width * height * 3) {
-            return Err(format!(
-                "image {i} has {} bytes, not {width} × {height} × 3",
-                frames[i].len()
-            ));
-        }
-        let mut out = Vec::with_capacity(frames.len());
-        for chunk in frames.chunks(self.batch.max(1)) {
+    }
+
+    /// [`Inception::features`] through burn's forward ([`Inception::forward`]), whatever the
+    /// device: the reference the CPU form is checked against.
+    pub fn burn_features(
+        &self,
+        frames: &[&[u8]],
+        width: usize,
+        height: usize,
+        tick: impl FnMut(usize),
+    ) -> Result<Vec<Vec<f32>>, String> {
+        self.batched(frames, width, height, tick, |chunk| {
             let mut v = Vec::with_capacity(chunk.len() * 3 * INPUT_SIZE * INPUT_SIZE);
             for f in chunk {
                 v.extend(prepare(f, width, height));
@@ -366,10 +390,41 @@ impl Inception {
                     .try_to_vec::<f32>()
                     .map_err(|e| format!("reading the features back: {e:?}"))
             })?;
-            out.extend(f.chunks(FEATURE_DIM).map(<[f32]>::to_vec));
+            Ok(f.chunks(FEATURE_DIM).map(<[f32]>::to_vec).collect())
+        })
+    }
+
+    /// `run` on the frames `self.batch` at a time (checked to be `width × height` RGB first),
+    /// `tick` after each batch.
+    fn batched(
+        &self,
+        frames: &[&[u8]],
+        width: usize,
+        height: usize,
+        mut tick: impl FnMut(usize),
+        mut run: impl FnMut(&[&[u8]]) -> Result<Vec<Vec<f32>>, String>,
+    ) -> Result<Vec<Vec<f32>>, String> {
+        check_frames(frames, width, height)?;
+        let mut out = Vec::with_capacity(frames.len());
+        for chunk in frames.chunks(self.batch.max(1)) {
+            out.extend(run(chunk)?);
             tick(chunk.len());
         }
         Ok(out)
+    }
+}
+
+/// That every frame is `width × height` RGB bytes, and the size not empty.
+fn check_frames(frames: &[&[u8]], width: usize, height: usize) -> Result<(), String> {
+    if width == 0 || height == 0 {
+        return Err(format!("images of {width} × {height} pixels"));
+    }
+    match frames.iter().position(|f| f.len() != width * height * 3) {
+        Some(i) => Err(format!(
+            "image {i} has {} bytes, not {width} × {height} × 3",
+            frames[i].len()
+        )),
+        None => Ok(()),
     }
 }
 

@@ -7,8 +7,9 @@
 //! bilinear resize to 299, input range [−1, 0.9921875]), made once by
 //! `scripts/inception-reference` (versions in `reference.json`).
 //!
-//! Our features (rig-nn/src/inception.rs, burn on the CPU) must match each reference vector `r`
-//! within 1e-3 relative: ‖ours − r‖₂ ≤ 1e-3 ‖r‖₂, and every element within 1e-3 ‖r‖∞ (the
+//! Our features (rig-nn/src/inception.rs: on the CPU its inference form,
+//! rig-nn/src/inception/fast.rs, and burn's forward beside it) must match each reference vector
+//! `r` within 1e-3 relative: ‖ours − r‖₂ ≤ 1e-3 ‖r‖₂, and every element within 1e-3 ‖r‖∞ (the
 //! vector's largest element).
 //!
 //! The weights (87 MB) are not in the repository: `python3 scripts/fetch-inception` writes them
@@ -77,6 +78,21 @@ fn inception_features_match_the_reference_vectors_to_1e_3_relative() {
             .remove(0);
         let secs = t.elapsed().as_secs_f64();
         let r = reference(name);
+        // burn's forward, which the CPU inference form that `features` runs replaces there:
+        // both meet the reference's tolerance.
+        let burn = net
+            .burn_features(&[img.as_raw()], wd as usize, ht as usize, |_| {})
+            .unwrap()
+            .remove(0);
+        let rel_burn = rel_l2(&burn, &r);
+        eprintln!(
+            "{name}: burn's forward {rel_burn:.2e} from the reference, {:.2e} from ours",
+            rel_l2(&ours, &burn)
+        );
+        assert!(
+            rel_burn <= 1e-3,
+            "{name}: burn's forward {rel_burn:.2e} > 1e-3"
+        );
         let rel = rel_l2(&ours, &r);
         let r_max = r.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
         let (k, elem) = ours

@@ -150,6 +150,27 @@ pub(super) fn product(
     product_into(dst, n, [m, n, k], accumulate, lhs, rhs, par);
 }
 
+/// `dst = lhs · rhs` for row-major slices: `lhs` `[m, k]` (at least that many floats, read as
+/// such), `rhs` `[k, n]`, `dst` `[m, n]`. The inference forms' convolutions
+/// (`force_net/fast.rs`, `inception/fast.rs`).
+pub(crate) fn matmul(
+    dst: &mut [f32],
+    [m, n, k]: [usize; 3],
+    lhs: &[f32],
+    rhs: &[f32],
+    par: Parallelism,
+) {
+    assert!(lhs.len() >= m * k && rhs.len() == k * n && dst.len() == m * n);
+    product(
+        dst,
+        [m, n, k],
+        false,
+        Mat::rows(lhs, k),
+        Mat::rows(rhs, n),
+        par,
+    );
+}
+
 /// [`product`] into `m` rows of `n` floats that start `stride` floats apart in `dst`.
 pub(super) fn product_into(
     dst: &mut [f32],

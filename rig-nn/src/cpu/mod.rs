@@ -32,6 +32,6 @@ pub use adam::FusedAdam;
 pub use conv::conv2d;
 pub(crate) use conv::symmetric;
 pub use deconv::conv_transpose2d;
-pub(crate) use kernels::{taps_major, three_rows};
+pub(crate) use kernels::{matmul, taps_major, three_rows};
 pub use norm::{batch_norm, batch_norm_relu, instance_norm};
 pub use pad::reflect_pad;

@@ -28,7 +28,7 @@ use burn::tensor::Tensor;
 use gemm::Parallelism;
 
 use super::{Encoder, ForceNet, ResUnit};
-use crate::cpu::{symmetric, taps_major, three_rows};
+use crate::cpu::{matmul, symmetric, taps_major, three_rows};
 
 impl ForceNet {
     /// The encoder compiled for CPU inference (see [`FastEncoder`]), `None` if it has a layer
@@ -230,33 +230,7 @@ impl Conv {
         let mut out = vec![0f32; m * self.c_out];
         let n = self.c_out;
         // One thread: the frames of a batch run in parallel instead.
-        let par = Parallelism::None;
-        // SAFETY: dst is m × n, lhs m × kk and rhs kk × n, all row-major and of those lengths
-        // (asserted); the three do not overlap.
-        assert!(lhs.len() >= m * kk && self.w.len() == kk * n && out.len() == m * n);
-        unsafe {
-            gemm::gemm(
-                m,
-                n,
-                kk,
-                out.as_mut_ptr(),
-                1,
-                n as isize,
-                false,
-                lhs.as_ptr(),
-                1,
-                kk as isize,
-                self.w.as_ptr(),
-                1,
-                n as isize,
-                0.0,
-                1.0,
-                false,
-                false,
-                false,
-                par,
-            );
-        }
+        matmul(&mut out, [m, n, kk], lhs, &self.w, Parallelism::None);
         self.finish(&mut out, residual.map(|r| r.v.as_slice()), relu);
         Map {
             n: x.n,
