@@ -318,7 +318,7 @@ impl Inception {
         let fast = if crate::GPU {
             None
         } else {
-            fast::FastInception::new(&stem, &blocks)
+            fast_form(&stem, &blocks)
         };
         Ok(Self {
             stem,
@@ -357,7 +357,7 @@ impl Inception {
     ) -> Result<Vec<Vec<f32>>, String> {
         match &self.fast {
             Some(fast) => self.batched(frames, width, height, tick, |chunk| {
-                Ok(fast.features(chunk, width, height))
+                Ok(fast.features(chunk, |f| prepare(f, width, height)))
             }),
             None => self.burn_features(frames, width, height, tick),
         }
@@ -412,6 +412,60 @@ impl Inception {
         }
         Ok(out)
     }
+}
+
+/// `c` in the CPU inference form (`None` if its weights cannot be read back).
+fn fast_conv(c: &ConvBn) -> Option<fast::Conv> {
+    let read = |t: TensorData| t.convert::<f32>().try_to_vec::<f32>().ok();
+    Some(fast::Conv::new(
+        &read(c.weight.clone().into_data())?,
+        c.weight.dims(),
+        read(c.bias.clone().into_data())?,
+        c.stride,
+        c.padding,
+    ))
+}
+
+/// The network's layers in the CPU inference form (`fast.rs`), each block as its branches.
+fn fast_form(stem: &[ConvBn], blocks: &[Block]) -> Option<fast::FastInception> {
+    use fast::{Branch, Pool};
+    let convs = |cs: &[ConvBn]| cs.iter().map(fast_conv).collect::<Option<Vec<_>>>();
+    let one = |c: &ConvBn| Some(vec![fast_conv(c)?]);
+    let plain = |chain: Vec<fast::Conv>| Branch::new(Pool::None, chain, Vec::new());
+    let max = || Branch::new(Pool::Max { stride: 2, pad: 0 }, Vec::new(), Vec::new());
+    let blocks = blocks
+        .iter()
+        .map(|b| match b {
+            Block::A { b1, b5, b3, pool }
+            | Block::C {
+                b1,
+                b7: b5,
+                b7dbl: b3,
+                pool,
+            } => Some(vec![
+                plain(one(b1)?),
+                plain(convs(b5)?),
+                plain(convs(b3)?),
+                Branch::new(Pool::Avg, one(pool)?, Vec::new()),
+            ]),
+            Block::B { b3, b3dbl } => Some(vec![plain(one(b3)?), plain(convs(b3dbl)?), max()]),
+            Block::D { b3, b7 } => Some(vec![plain(convs(b3)?), plain(convs(b7)?), max()]),
+            Block::E(e) => {
+                let p = if e.max_pool {
+                    Pool::Max { stride: 1, pad: 1 }
+                } else {
+                    Pool::Avg
+                };
+                Some(vec![
+                    plain(one(&e.b1)?),
+                    Branch::new(Pool::None, one(&e.b3)?, convs(&e.b3_split)?),
+                    Branch::new(Pool::None, convs(&e.dbl)?, convs(&e.dbl_split)?),
+                    Branch::new(p, one(&e.pool)?, Vec::new()),
+                ])
+            }
+        })
+        .collect::<Option<_>>()?;
+    Some(fast::FastInception::new(convs(stem)?, blocks))
 }
 
 /// That every frame is `width × height` RGB bytes, and the size not empty.
@@ -731,7 +785,101 @@ impl Loader<'_> {
 
 #[cfg(test)]
 mod tests {
+    use burn::tensor::Distribution;
+
     use super::*;
+
+    /// A map's values in burn's NCHW layout, as a one-image tensor.
+    fn tensor(x: &fast::Map, dev: &Device) -> Tensor<4> {
+        let mut v = vec![0f32; x.v.len()];
+        for (p, px) in x.v.chunks_exact(x.c).enumerate() {
+            for (c, &a) in px.iter().enumerate() {
+                v[c * x.h * x.w + p] = a;
+            }
+        }
+        Tensor::from_data(TensorData::new(v, [1, x.c, x.h, x.w]), dev)
+    }
+
+    fn map_of(t: Tensor<4>) -> fast::Map {
+        let [_, c, h, w] = t.dims();
+        let v: Vec<f32> = t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        let mut out = vec![0f32; v.len()];
+        for (i, &a) in v.iter().enumerate() {
+            out[(i % (h * w)) * c + i / (h * w)] = a;
+        }
+        fast::Map { h, w, c, v: out }
+    }
+
+    fn assert_close(ours: &fast::Map, burn: &fast::Map, what: &str) {
+        assert_eq!((ours.h, ours.w, ours.c), (burn.h, burn.w, burn.c), "{what}");
+        let scale = burn.v.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+        for (i, (a, b)) in ours.v.iter().zip(&burn.v).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-5 * scale,
+                "{what}: value {i}: {a} against {b}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_inference_forms_layers_compute_burns_convolutions_and_pools() {
+        let dev = Device::flex();
+        // The network's kernel shapes: 1 × 1, the factorised 1 × 7 and 7 × 1 (and 1 × 3, 3 × 1)
+        // with their one-sided padding, 5 × 5, and 3 × 3 of stride 2 without padding.
+        let layers = [
+            ([1, 1], 1, [0, 0]),
+            ([1, 7], 1, [0, 3]),
+            ([7, 1], 1, [3, 0]),
+            ([3, 1], 1, [1, 0]),
+            ([5, 5], 1, [2, 2]),
+            ([3, 3], 2, [0, 0]),
+            ([3, 3], 1, [1, 1]),
+        ];
+        let x = map_of(Tensor::random(
+            [1, 5, 11, 9],
+            Distribution::Normal(0.0, 1.0),
+            &dev,
+        ));
+        let mut col = Vec::new();
+        for (k, stride, padding) in layers {
+            let conv = ConvBn {
+                weight: Tensor::random([4, 5, k[0], k[1]], Distribution::Normal(0.0, 0.5), &dev),
+                bias: Tensor::random([4], Distribution::Normal(0.0, 0.5), &dev),
+                stride,
+                padding,
+            };
+            let ours = fast_conv(&conv).unwrap().run(&x, &mut col);
+            let burn = map_of(conv.forward(tensor(&x, &dev)));
+            assert_close(
+                &ours,
+                &burn,
+                &format!("{k:?} stride {stride} padding {padding:?}"),
+            );
+            // The ReLU is applied: some outputs were negative before it.
+            assert!(ours.v.contains(&0.0), "{k:?}");
+        }
+        assert_close(
+            &fast::pool(&x, fast::Pool::Avg),
+            &map_of(avg_pool_same(tensor(&x, &dev))),
+            "avg",
+        );
+        for (stride, pad) in [(2, 0), (1, 1)] {
+            let ours = fast::pool(&x, fast::Pool::Max { stride, pad });
+            let burn = map_of(max_pool(tensor(&x, &dev), stride, pad));
+            assert_close(&ours, &burn, &format!("max pool {stride}/{pad}"));
+        }
+        // The padding is never the maximum: an all-negative map stays negative at its border.
+        let neg = fast::Map {
+            v: vec![-1.0; x.v.len()],
+            ..x.clone()
+        };
+        assert!(
+            fast::pool(&neg, fast::Pool::Max { stride: 1, pad: 1 })
+                .v
+                .iter()
+                .all(|&v| v == -1.0)
+        );
+    }
 
     #[test]
     fn the_resize_is_tf1_bilinear_and_the_range_is_that_of_the_graph() {

@@ -12,25 +12,23 @@
 //! - **Images in parallel,** each on one thread with its own scratch: no pool wake-ups inside
 //!   a layer, and a block's branches concatenate by copying channel runs.
 
-use burn::tensor::Tensor;
 use gemm::Parallelism;
 use rayon::prelude::*;
 
-use super::{Block, ConvBn, FEATURE_DIM, INPUT_SIZE, prepare};
 use crate::cpu::matmul;
 
 /// An activation map of one image, channels last (`[h][w][c]`).
 #[derive(Debug, Clone)]
-struct Map {
-    h: usize,
-    w: usize,
-    c: usize,
-    v: Vec<f32>,
+pub(super) struct Map {
+    pub(super) h: usize,
+    pub(super) w: usize,
+    pub(super) c: usize,
+    pub(super) v: Vec<f32>,
 }
 
 /// A convolution with its batch norm folded in, then a ReLU.
 #[derive(Debug, Clone)]
-struct Conv {
+pub(super) struct Conv {
     kh: usize,
     kw: usize,
     stride: usize,
@@ -43,23 +41,21 @@ struct Conv {
     b: Vec<f32>,
 }
 
-fn values<const D: usize>(t: &Tensor<D>) -> Option<Vec<f32>> {
-    t.clone()
-        .into_data()
-        .convert::<f32>()
-        .try_to_vec::<f32>()
-        .ok()
-}
-
 impl Conv {
-    fn new(c: &ConvBn) -> Option<Self> {
-        let [c_out, c_in, kh, kw] = c.weight.dims();
-        let w = values(&c.weight)?;
-        let b = values(&c.bias)?;
-        if w.len() != c_out * c_in * kh * kw || b.len() != c_out {
-            return None;
-        }
-        // burn's [c_out][c_in][ky][kx] to rows (ky, kx, ci) of c_out columns.
+    /// The convolution of weights `w` in burn's layout (`[c_out][c_in][kh][kw]`, batch norm
+    /// folded in) and bias `b`, with `stride` and padding `pad` (rows, columns).
+    pub(super) fn new(
+        w: &[f32],
+        [c_out, c_in, kh, kw]: [usize; 4],
+        b: Vec<f32>,
+        stride: usize,
+        pad: [usize; 2],
+    ) -> Self {
+        assert!(
+            w.len() == c_out * c_in * kh * kw && b.len() == c_out,
+            "weights of another shape"
+        );
+        // Rows (ky, kx, ci) of c_out columns.
         let mut t = vec![0f32; w.len()];
         for (i, &v) in w.iter().enumerate() {
             let (kx, rest) = (i % kw, i / kw);
@@ -67,16 +63,16 @@ impl Conv {
             let (ci, o) = (rest % c_in, rest / c_in);
             t[((ky * kw + kx) * c_in + ci) * c_out + o] = v;
         }
-        Some(Self {
+        Self {
             kh,
             kw,
-            stride: c.stride,
-            pad: c.padding,
+            stride,
+            pad,
             c_in,
             c_out,
             w: t,
             b,
-        })
+        }
     }
 
     fn out_size(&self, h: usize, w: usize) -> (usize, usize) {
@@ -87,7 +83,7 @@ impl Conv {
     }
 
     /// `relu(conv(x) + bias)`. `col` is scratch for the im2col matrix.
-    fn run(&self, x: &Map, col: &mut Vec<f32>) -> Map {
+    pub(super) fn run(&self, x: &Map, col: &mut Vec<f32>) -> Map {
         assert_eq!(x.c, self.c_in, "a map of another depth");
         let (oh, ow) = self.out_size(x.h, x.w);
         let (m, kk, n) = (oh * ow, self.kh * self.kw * self.c_in, self.c_out);
@@ -142,7 +138,7 @@ fn im2col(x: &Map, conv: &Conv, oh: usize, ow: usize, col: &mut Vec<f32>) {
 
 /// What a branch does to the block's input before its convolutions.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Pool {
+pub(super) enum Pool {
     None,
     /// 3 × 3, stride 1, padding 1, dividing by the real (not padded) inputs.
     Avg,
@@ -154,7 +150,7 @@ enum Pool {
 }
 
 /// A 3 × 3 pool of `x`: the mean of the inputs inside the map (`Pool::Avg`), or their maximum.
-fn pool(x: &Map, p: Pool) -> Map {
+pub(super) fn pool(x: &Map, p: Pool) -> Map {
     let (stride, pad, avg) = match p {
         Pool::None => return x.clone(),
         Pool::Avg => (1, 1, true),
@@ -200,19 +196,15 @@ fn pool(x: &Map, p: Pool) -> Map {
 /// One branch of a block: a pool, a chain of convolutions, and, for the E blocks' towers, the
 /// pair of convolutions the chain's output splits into (each one an output of the branch).
 #[derive(Debug, Clone)]
-struct Branch {
+pub(super) struct Branch {
     pool: Pool,
     chain: Vec<Conv>,
     split: Vec<Conv>,
 }
 
 impl Branch {
-    fn new(pool: Pool, chain: &[ConvBn], split: &[ConvBn]) -> Option<Self> {
-        Some(Self {
-            pool,
-            chain: chain.iter().map(Conv::new).collect::<Option<_>>()?,
-            split: split.iter().map(Conv::new).collect::<Option<_>>()?,
-        })
+    pub(super) fn new(pool: Pool, chain: Vec<Conv>, split: Vec<Conv>) -> Self {
+        Self { pool, chain, split }
     }
 
     fn run(&self, x: &Map, col: &mut Vec<f32>, outs: &mut Vec<Map>) {
@@ -255,67 +247,28 @@ pub struct FastInception {
 }
 
 impl FastInception {
-    /// The inference form of the network's layers (`None` if a weight cannot be read back).
-    pub(super) fn new(stem: &[ConvBn], blocks: &[Block]) -> Option<Self> {
-        let one = std::slice::from_ref;
-        let plain = |chain: &[ConvBn]| Branch::new(Pool::None, chain, &[]);
-        let max = Pool::Max { stride: 2, pad: 0 };
-        let blocks = blocks
-            .iter()
-            .map(|b| match b {
-                Block::A { b1, b5, b3, pool }
-                | Block::C {
-                    b1,
-                    b7: b5,
-                    b7dbl: b3,
-                    pool,
-                } => Some(vec![
-                    plain(one(b1))?,
-                    plain(b5)?,
-                    plain(b3)?,
-                    Branch::new(Pool::Avg, one(pool), &[])?,
-                ]),
-                Block::B { b3, b3dbl } => Some(vec![
-                    plain(one(b3))?,
-                    plain(b3dbl)?,
-                    Branch::new(max, &[], &[])?,
-                ]),
-                Block::D { b3, b7 } => {
-                    Some(vec![plain(b3)?, plain(b7)?, Branch::new(max, &[], &[])?])
-                }
-                Block::E(e) => {
-                    let p = if e.max_pool {
-                        Pool::Max { stride: 1, pad: 1 }
-                    } else {
-                        Pool::Avg
-                    };
-                    Some(vec![
-                        plain(one(&e.b1))?,
-                        Branch::new(Pool::None, one(&e.b3), &e.b3_split)?,
-                        Branch::new(Pool::None, &e.dbl, &e.dbl_split)?,
-                        Branch::new(p, one(&e.pool), &[])?,
-                    ])
-                }
-            })
-            .collect::<Option<_>>()?;
-        Some(Self {
-            stem: stem.iter().map(Conv::new).collect::<Option<_>>()?,
-            blocks,
-        })
+    /// The network of `stem` (a 3/2 max pool after its third and fifth convolution) and
+    /// `blocks` (each the branches whose outputs it concatenates).
+    pub(super) fn new(stem: Vec<Conv>, blocks: Vec<Vec<Branch>>) -> Self {
+        Self { stem, blocks }
     }
 
-    /// The 2048-d features of RGB frames (HWC bytes, each `width × height × 3`, checked by the
-    /// caller), the frames in parallel.
-    pub(super) fn features(&self, frames: &[&[u8]], width: usize, height: usize) -> Vec<Vec<f32>> {
+    /// The features of `frames`, each made into the network's square input by `prepare`
+    /// (planar, `3 × n × n`), the frames in parallel.
+    pub(super) fn features(
+        &self,
+        frames: &[&[u8]],
+        prepare: impl Fn(&[u8]) -> Vec<f32> + Sync,
+    ) -> Vec<Vec<f32>> {
         frames
             .par_iter()
-            .map_init(Vec::new, |col, f| self.one(f, width, height, col))
+            .map_init(Vec::new, |col, f| self.one(&prepare(f), col))
             .collect()
     }
 
-    fn one(&self, rgb: &[u8], width: usize, height: usize, col: &mut Vec<f32>) -> Vec<f32> {
-        let n = INPUT_SIZE;
-        let chw = prepare(rgb, width, height);
+    fn one(&self, chw: &[f32], col: &mut Vec<f32>) -> Vec<f32> {
+        let n = (chw.len() / 3).isqrt();
+        assert_eq!(chw.len(), 3 * n * n, "the input is not 3 square planes");
         let mut v = vec![0f32; n * n * 3];
         for (c, plane) in chw.chunks_exact(n * n).enumerate() {
             for (p, &x) in plane.iter().enumerate() {
@@ -343,7 +296,6 @@ impl FastInception {
             }
             x = concat(&outs);
         }
-        debug_assert_eq!(x.c, FEATURE_DIM);
         // The average over the final map (8 × 8 for a 299 input).
         let mut f = vec![0f32; x.c];
         for px in x.v.chunks_exact(x.c) {
@@ -357,102 +309,7 @@ impl FastInception {
 
 #[cfg(test)]
 mod tests {
-    use burn::tensor::{Device, Distribution, TensorData};
-
-    use super::super::{avg_pool_same, max_pool};
     use super::*;
-
-    /// A map's values in burn's NCHW layout, as a one-image tensor.
-    fn tensor(x: &Map, dev: &Device) -> Tensor<4> {
-        let mut v = vec![0f32; x.v.len()];
-        for (p, px) in x.v.chunks_exact(x.c).enumerate() {
-            for (c, &a) in px.iter().enumerate() {
-                v[c * x.h * x.w + p] = a;
-            }
-        }
-        Tensor::from_data(TensorData::new(v, [1, x.c, x.h, x.w]), dev)
-    }
-
-    fn map_of(t: Tensor<4>) -> Map {
-        let [_, c, h, w] = t.dims();
-        let v = values(&t).unwrap();
-        let mut out = vec![0f32; v.len()];
-        for (i, &a) in v.iter().enumerate() {
-            out[(i % (h * w)) * c + i / (h * w)] = a;
-        }
-        Map { h, w, c, v: out }
-    }
-
-    fn assert_close(ours: &Map, burn: &Map, what: &str) {
-        assert_eq!((ours.h, ours.w, ours.c), (burn.h, burn.w, burn.c), "{what}");
-        let scale = burn.v.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-        for (i, (a, b)) in ours.v.iter().zip(&burn.v).enumerate() {
-            assert!(
-                (a - b).abs() <= 1e-5 * scale,
-                "{what}: value {i}: {a} against {b}"
-            );
-        }
-    }
-
-    #[test]
-    fn the_layers_compute_burns_convolutions_and_pools() {
-        let dev = Device::flex();
-        // The network's kernel shapes: 1 × 1, the factorised 1 × 7 and 7 × 1 (and 1 × 3, 3 × 1)
-        // with their one-sided padding, 5 × 5, and 3 × 3 of stride 2 without padding.
-        let layers = [
-            ([1, 1], 1, [0, 0]),
-            ([1, 7], 1, [0, 3]),
-            ([7, 1], 1, [3, 0]),
-            ([3, 1], 1, [1, 0]),
-            ([5, 5], 1, [2, 2]),
-            ([3, 3], 2, [0, 0]),
-            ([3, 3], 1, [1, 1]),
-        ];
-        let x = map_of(Tensor::random(
-            [1, 5, 11, 9],
-            Distribution::Normal(0.0, 1.0),
-            &dev,
-        ));
-        let mut col = Vec::new();
-        for (k, stride, padding) in layers {
-            let conv = ConvBn {
-                weight: Tensor::random([4, 5, k[0], k[1]], Distribution::Normal(0.0, 0.5), &dev),
-                bias: Tensor::random([4], Distribution::Normal(0.0, 0.5), &dev),
-                stride,
-                padding,
-            };
-            let ours = Conv::new(&conv).unwrap().run(&x, &mut col);
-            let burn = map_of(conv.forward(tensor(&x, &dev)));
-            assert_close(
-                &ours,
-                &burn,
-                &format!("{k:?} stride {stride} padding {padding:?}"),
-            );
-            // The ReLU is applied: some outputs were negative before it.
-            assert!(ours.v.contains(&0.0), "{k:?}");
-        }
-        assert_close(
-            &pool(&x, Pool::Avg),
-            &map_of(avg_pool_same(tensor(&x, &dev))),
-            "avg",
-        );
-        for (stride, pad) in [(2, 0), (1, 1)] {
-            let ours = pool(&x, Pool::Max { stride, pad });
-            let burn = map_of(max_pool(tensor(&x, &dev), stride, pad));
-            assert_close(&ours, &burn, &format!("max pool {stride}/{pad}"));
-        }
-        // The padding is never the maximum: an all-negative map stays negative at its border.
-        let neg = Map {
-            v: vec![-1.0; x.v.len()],
-            ..x.clone()
-        };
-        assert!(
-            pool(&neg, Pool::Max { stride: 1, pad: 1 })
-                .v
-                .iter()
-                .all(|&v| v == -1.0)
-        );
-    }
 
     #[test]
     fn branches_concatenate_in_order_pixel_by_pixel() {
