@@ -34,8 +34,10 @@
 //! What remains (`docs/experiments.md`, "Labels: solves between the grid's steps become
 //! probes"): at ×10 the host dates the F/T's samples about 0.1–0.2 ms of clock time late,
 //! 0.04–0.05 N where a flat face lifts off at 5 mm/s (at ×2 the wave's worst frame is 0.039 N);
-//! and paralines' force is kinked at the micrometre scale where its ridges cross the cells'
-//! sub-samples, 0.1 N from one F/T sample to the next, so its worst frames are 0.06–0.14 N off.
+//! and a flat face's walls crossing the cells' sub-samples stepped its force by up to 0.07 N
+//! from one F/T sample to the next; the walls are now filtered across one sub-sample
+//! (`sim/contact/geometry.rs`, 0.003–0.045 N), but paralines' worst frames are still 0.10–0.27 N
+//! off where its slide reverses (docs/experiments.md, "Walls filtered across the sub-samples").
 
 use std::collections::VecDeque;
 use std::io;

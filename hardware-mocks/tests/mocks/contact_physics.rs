@@ -89,7 +89,7 @@ const FLAT_PUNCH_KAPPA: [(f64, [(f64, f64); 3]); 2] = [
 ];
 
 #[test]
-fn the_layer_model_matches_the_bonded_layer_flat_punch_solution_within_3_percent() {
+fn the_layer_model_matches_the_bonded_layer_flat_punch_solution_within_1_percent() {
     let depth = 0.05;
     for (nu, kappas) in FLAT_PUNCH_KAPPA {
         let gel = ElastomerConfig {
@@ -105,10 +105,10 @@ fn the_layer_model_matches_the_bonded_layer_flat_punch_solution_within_3_percent
             .unwrap();
             let half_space = 2.0 * a * e_star * depth;
             let want = half_space * kappa;
-            // The punch's edge carries a singular pressure, so its force converges slowly with
-            // the cell: within 3 % at 0.05 mm, within 1 % at 0.025 mm, and closer the finer the
-            // grid (measured: −1.8 % and −0.8 % for the smallest punch), so what remains is
-            // the grid's error, not the layer model's.
+            // The punch's edge carries a singular pressure, so its force converged slowly with
+            // the cell while the edge was a staircase of sub-samples (−1.8 % and −0.8 % for the
+            // smallest punch at these cells). With the wall filtered across one sub-sample
+            // outside it (`sim/contact/geometry.rs`), every row is within 0.3 %.
             let errors = [0.05, 0.025].map(|cell| {
                 let got = force(&punch, &gel, ContactModel::Layer, cell, depth);
                 let err = (got - want) / want;
@@ -122,15 +122,11 @@ fn the_layer_model_matches_the_bonded_layer_flat_punch_solution_within_3_percent
             // The layer is markedly stiffer than the half-space here, so the check has teeth.
             assert!(kappa > 1.2);
             assert!(
-                errors[0].abs() < 0.03,
+                errors[0].abs() < 0.01,
                 "ν = {nu}, a/h = {a_over_h}: {errors:?}"
             );
             assert!(
                 errors[1].abs() < 0.01,
-                "ν = {nu}, a/h = {a_over_h}: {errors:?}"
-            );
-            assert!(
-                errors[1].abs() < errors[0].abs(),
                 "ν = {nu}, a/h = {a_over_h}: {errors:?}"
             );
         }

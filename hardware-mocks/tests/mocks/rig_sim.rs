@@ -847,3 +847,72 @@ async fn the_force_is_continuous_across_a_grid_tick_where_a_ridged_face_slides()
         worst.1
     );
 }
+
+/// A flat face sliding under friction changes its force smoothly between the physics ticks: its
+/// walls cross the cells' sub-samples gradually (`sim/contact/geometry.rs`). Probes 0.5 ms
+/// apart (1 µm of slide at the plan's 2 mm/s) within each half period, where they start from
+/// one history: with point-sampled walls the hexagon's force moved by up to 0.025 N and dotin's
+/// (a ring around a disc) by up to 0.051 N from one probe to the next; filtered, 0.003 and
+/// 0.010 N. The bound is under half the labels' 0.05 N budget: a step between two F/T samples
+/// moves a label interpolated across it by up to its size.
+#[tokio::test(flavor = "current_thread")]
+async fn a_sliding_flat_face_changes_its_force_smoothly_between_ticks() {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    for name in ["hexagon", "dotin"] {
+        let physics = ContactPhysics::new(
+            frame,
+            cfg.elastomer.clone(),
+            Arc::new(Indenter::builtin(name).unwrap()),
+            PhysicsConfig::default(),
+            true,
+        )
+        .unwrap();
+        let (c, s) = (300f64.to_radians().cos(), 300f64.to_radians().sin());
+        // Down 0.6 mm in 200 ms, then the slide at 2 mm/s for 300 ms.
+        let pose_at = move |t_ns: u64| {
+            let t_ms = t_ns as f64 * 1e-6;
+            let depth = 0.6 * (t_ms / 200.0).min(1.0);
+            let along = ((t_ms - 200.0) * 2e-3).clamp(0.0, 0.6);
+            (
+                t_ns,
+                pose_above_surface(&frame, along * c, along * s, -depth),
+            )
+        };
+        let (clock, _handle) = Clock::manual();
+        let _task = physics.spawn(clock.clone(), Arc::new(pose_at));
+        let period_ns = (1e9 / PhysicsConfig::default().rate_hz) as u64;
+        let probes = 20u64; // a half period in 0.5 ms steps
+        let mut worst = (0.0f64, 0);
+        for k in 0..=25u64 {
+            let g = k * period_ns;
+            physics.update(g, &pose_at(g).1).unwrap();
+            if g < 240_000_000 {
+                continue; // past touch-down and the slide's first steps (stick turning to slip)
+            }
+            // Each half period's probes start from one history (`ContactPhysics::step_at`).
+            for half in 0..2u64 {
+                let mut last: Option<[f64; 3]> = None;
+                for j in 1..probes {
+                    let t = g + half * period_ns / 2 + j * period_ns / (2 * probes);
+                    assert!(physics.field_at(t).is_some());
+                    let f = physics.wrench_at(t).force_n;
+                    if let Some(l) = last {
+                        for a in 0..3 {
+                            if (f[a] - l[a]).abs() > worst.0 {
+                                worst = ((f[a] - l[a]).abs(), t / 1_000_000);
+                            }
+                        }
+                    }
+                    last = Some(f);
+                }
+            }
+        }
+        assert!(
+            worst.0 <= 0.02,
+            "{name}: the force moved {:.4} N in 0.5 ms at {} ms",
+            worst.0,
+            worst.1
+        );
+    }
+}

@@ -439,6 +439,24 @@ impl Indenter {
         }
     }
 
+    /// The face near its edge at `(x_mm, y_mm)`: the gap of its nearest point and the signed
+    /// distance to the footprint's edge, mm, positive inside ([`Shape::edge_mm`]); of several
+    /// shapes, the one the point is deepest in (a union's signed distance is the largest).
+    /// `None` for a mesh, or a shape that does not know its edge.
+    pub fn edge_mm(&self, x_mm: f64, y_mm: f64) -> Option<(f64, f64)> {
+        let Geometry::Shapes(shapes) = &self.geometry else {
+            return None;
+        };
+        let mut best: Option<(f64, f64)> = None;
+        for s in shapes {
+            let (g, d) = s.edge_mm(x_mm, y_mm)?;
+            if best.is_none_or(|(_, bd)| d > bd) {
+                best = Some((g, d));
+            }
+        }
+        best.map(|(g, d)| (g - self.lowest_mm, d))
+    }
+
     /// The contact face sampled on a grid of `extent_mm` (total width in x and y) at
     /// `resolution_mm`, centred on the indenter axis.
     ///

@@ -296,6 +296,94 @@ impl Shape {
         ]
     }
 
+    /// The face near its edge, at `(x, y)` mm in the indenter frame: `(gap, distance)`, the
+    /// gap of the face's nearest point (including `lift_mm`) and the signed distance to the
+    /// footprint's edge, positive inside. The contact's overlap filters the edge with it
+    /// (`hardware-mocks`' `sim/contact`), so a wall passing a sub-sample moves the overlap
+    /// continuously. Outside the footprint the gap is the face's at the edge: where the edge
+    /// is a wall (flat faces, a cap's rim), that is the top of the wall. `None` for random
+    /// bumps, whose rims are not pressed.
+    pub fn edge_mm(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        let dx = x - self.center_mm[0];
+        let dy = y - self.center_mm[1];
+        let u = self.cos * dx + self.sin * dy;
+        let v = -self.sin * dx + self.cos * dy;
+        let rho = radius(u, v);
+        let (gap, distance) = match &self.primitive {
+            Primitive::SphereCap(p) => {
+                let rim = p.rim_radius_mm.unwrap_or(p.radius_mm);
+                (cap(p.radius_mm, rho.min(rim)), rim - rho)
+            }
+            Primitive::Cone(p) => (rho.min(p.radius_mm) * self.flank, p.radius_mm - rho),
+            Primitive::FlatPunch(p) => (0.0, p.radius_mm - rho),
+            Primitive::Ring(p) => (0.0, (rho - p.inner_radius_mm).min(p.outer_radius_mm - rho)),
+            Primitive::Torus(p) => {
+                let off = (rho - p.major_radius_mm).abs();
+                (cap(p.minor_radius_mm, off), p.minor_radius_mm - off)
+            }
+            Primitive::Polygon(p) => {
+                let n = f64::from(p.sides);
+                let apothem = p.circumradius_mm * (std::f64::consts::PI / n).cos();
+                let sector = std::f64::consts::TAU / n;
+                let off = v.atan2(u).rem_euclid(sector) - sector / 2.0;
+                // The distance to the nearest side's line (the corners are rounded off by it).
+                (0.0, apothem - rho * off.cos())
+            }
+            Primitive::Bars(p) => {
+                let half_w = p.width_mm / 2.0;
+                let first = -(f64::from(p.count) - 1.0) / 2.0 * p.pitch_mm;
+                let dv = nearest_offset(v, first, p.pitch_mm, p.count);
+                let gap = match p.profile {
+                    Profile::Flat => 0.0,
+                    Profile::Round => cap(half_w, dv),
+                };
+                (gap, (half_w - dv).min(p.length_mm / 2.0 - u.abs()))
+            }
+            Primitive::Wedge(p) => (
+                v.abs().min(p.width_mm / 2.0) * self.flank,
+                (p.length_mm / 2.0 - u.abs()).min(p.width_mm / 2.0 - v.abs()),
+            ),
+            Primitive::DotGrid(p) => {
+                let fx = -(f64::from(p.cols) - 1.0) / 2.0 * p.pitch_mm;
+                let fy = -(f64::from(p.rows) - 1.0) / 2.0 * p.pitch_mm;
+                let r = radius(
+                    nearest_offset(u, fx, p.pitch_mm, p.cols),
+                    nearest_offset(v, fy, p.pitch_mm, p.rows),
+                );
+                let gap = match p.profile {
+                    Profile::Flat => 0.0,
+                    Profile::Round => cap(p.dot_radius_mm, r),
+                };
+                (gap, p.dot_radius_mm - r)
+            }
+            Primitive::Wave(p) => {
+                let uu = u.clamp(-p.size_mm[0] / 2.0, p.size_mm[0] / 2.0);
+                (
+                    p.amplitude_mm * (1.0 - (std::f64::consts::TAU * uu / p.wavelength_mm).cos())
+                        / 2.0,
+                    (p.size_mm[0] / 2.0 - u.abs()).min(p.size_mm[1] / 2.0 - v.abs()),
+                )
+            }
+            Primitive::Moon(p) => (
+                0.0,
+                (p.radius_mm - rho).min(radius(u - p.cut_offset_mm, v) - p.cut_radius_mm),
+            ),
+            Primitive::Pacman(p) => {
+                // The mouth's two sides are rays from the centre at ±mouth/2: a point's
+                // distance from the nearer one, negative inside the mouth.
+                let beyond = v.atan2(u).abs() - p.mouth_deg.to_radians() / 2.0;
+                let side = if beyond < std::f64::consts::FRAC_PI_2 {
+                    rho * beyond.sin()
+                } else {
+                    rho
+                };
+                (0.0, (p.radius_mm - rho).min(side))
+            }
+            Primitive::RandomBumps(_) => return None,
+        };
+        Some((self.lift_mm + gap, distance))
+    }
+
     fn local_gap(&self, u: f64, v: f64) -> f64 {
         const NONE: f64 = f64::INFINITY;
         let rho = radius(u, v);
@@ -713,6 +801,56 @@ mod tests {
         let d = 1e-6;
         assert!((cap(2.0, d) - d * d / 4.0).abs() < 1e-20);
         assert!((cap(2.0, 2.0) - 2.0).abs() < 1e-12);
+    }
+
+    /// Every built-in face that knows its edge: inside (distance > 0) the face is there and its
+    /// gap is `gap_mm`'s, outside it is not, and the distance changes no faster than the point
+    /// moves (it is a distance, so the contact's filter across a wall is one sub-sample wide).
+    #[test]
+    fn edges_agree_with_the_faces_and_are_distances() {
+        use crate::indenter::{BUILTIN_NAMES, Indenter};
+        let step = 0.0137;
+        for name in BUILTIN_NAMES {
+            let ind = Indenter::builtin(name).unwrap();
+            if *name == "random" {
+                assert!(ind.edge_mm(0.0, 0.0).is_none());
+                continue;
+            }
+            let [fx, fy] = ind.footprint_mm();
+            let (nx, ny) = ((fx / step) as i64 / 2 + 4, (fy / step) as i64 / 2 + 4);
+            let (mut inside, mut outside) = (0, 0);
+            for iy in -ny..=ny {
+                for ix in -nx..=nx {
+                    let (x, y) = (ix as f64 * step, iy as f64 * step);
+                    let (g, d) = ind.edge_mm(x, y).unwrap();
+                    let gap = ind.gap_mm(x, y);
+                    if d > 1e-9 {
+                        inside += 1;
+                        assert!(
+                            (gap - g).abs() < 1e-9,
+                            "{name} at ({x}, {y}): {d} mm inside, gap {gap} against {g}"
+                        );
+                    } else if d < -1e-9 {
+                        outside += 1;
+                        assert!(
+                            gap.is_infinite(),
+                            "{name} at ({x}, {y}): {d} mm outside, gap {gap}"
+                        );
+                    }
+                    let (_, dx) = ind.edge_mm(x + step, y).unwrap();
+                    let (_, dy) = ind.edge_mm(x, y + step).unwrap();
+                    assert!(
+                        (dx - d).abs() <= step * (1.0 + 1e-9)
+                            && (dy - d).abs() <= step * (1.0 + 1e-9),
+                        "{name} at ({x}, {y}): the distance {d} moves to {dx} / {dy} over {step} mm"
+                    );
+                }
+            }
+            assert!(
+                inside > 100 && outside > 100,
+                "{name}: {inside} inside, {outside} outside"
+            );
+        }
     }
 
     #[test]

@@ -127,6 +127,10 @@ const PHYSICS_SOURCE: u64 = {
         h,
         include_bytes!("../../../../rig-core/src/indenter/mod.rs"),
     );
+    h = fnv1a(
+        h,
+        include_bytes!("../../../../rig-core/src/indenter/shape.rs"),
+    );
     h
 };
 
