@@ -483,3 +483,51 @@ fn malformed_stl_is_named() {
         .to_string();
     assert!(e.contains("/nonexistent/tip.stl"), "{e}");
 }
+
+/// Every built-in face that knows its edge: inside (distance > 0) the face is there and its
+/// gap is `gap_mm`'s, outside it is not, and the distance changes no faster than the point
+/// moves (it is a distance, so the contact's filter across a wall is one sub-sample wide).
+#[test]
+fn edges_agree_with_the_faces_and_are_distances() {
+    let step = 0.0137;
+    for name in Indenter::list_builtin() {
+        let ind = Indenter::builtin(name).unwrap();
+        if *name == "random" {
+            assert!(ind.edge_mm(0.0, 0.0).is_none());
+            continue;
+        }
+        let [fx, fy] = ind.footprint_mm();
+        let (nx, ny) = ((fx / step) as i64 / 2 + 4, (fy / step) as i64 / 2 + 4);
+        let (mut inside, mut outside) = (0, 0);
+        for iy in -ny..=ny {
+            for ix in -nx..=nx {
+                let (x, y) = (ix as f64 * step, iy as f64 * step);
+                let (g, d) = ind.edge_mm(x, y).unwrap();
+                let gap = ind.gap_mm(x, y);
+                if d > 1e-9 {
+                    inside += 1;
+                    assert!(
+                        (gap - g).abs() < 1e-9,
+                        "{name} at ({x}, {y}): {d} mm inside, gap {gap} against {g}"
+                    );
+                } else if d < -1e-9 {
+                    outside += 1;
+                    assert!(
+                        gap.is_infinite(),
+                        "{name} at ({x}, {y}): {d} mm outside, gap {gap}"
+                    );
+                }
+                let (_, dx) = ind.edge_mm(x + step, y).unwrap();
+                let (_, dy) = ind.edge_mm(x, y + step).unwrap();
+                assert!(
+                    (dx - d).abs() <= step * (1.0 + 1e-9) && (dy - d).abs() <= step * (1.0 + 1e-9),
+                    "{name} at ({x}, {y}): the distance {d} moves to {dx} / {dy} over {step} mm"
+                );
+            }
+        }
+        assert!(
+            inside > 100 && outside > 100,
+            "{name}: {inside} inside, {outside} outside"
+        );
+    }
+}
