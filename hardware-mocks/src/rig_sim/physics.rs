@@ -36,8 +36,11 @@
 //! 0.04–0.05 N where a flat face lifts off at 5 mm/s (at ×2 the wave's worst frame is 0.039 N);
 //! and a flat face's walls crossing the cells' sub-samples stepped its force by up to 0.07 N
 //! from one F/T sample to the next; the walls are now filtered across one sub-sample
-//! (`sim/contact/geometry.rs`, 0.003–0.045 N), but paralines' worst frames are still 0.10–0.27 N
-//! off where its slide reverses (docs/experiments.md, "Walls filtered across the sub-samples").
+//! (`sim/contact/geometry.rs`, 0.003–0.045 N). An F/T sample at or past a tick the physics
+//! task had not reached yet was read off the line of the two steps before it, so where the
+//! contact re-settled (a slide stopping) a frame's label kept the old force (paralines 0.25 N);
+//! such a sample now steps its tick first. Paralines still has runs with a frame 0.15 N off
+//! (docs/experiments.md, "F/T samples read from their tick's step").
 
 use std::collections::VecDeque;
 use std::io;
@@ -642,7 +645,8 @@ impl WrenchSource for ContactPhysics {
     /// Linear interpolation in the buffer, clamped at the start; zero before the first step.
     /// Past the newest step, with [`PhysicsConfig::on_demand`]: a cheap model (Winkler,
     /// Hertz: tens of µs a step) steps at the sample's own time, so the F/T reads the exact
-    /// contact; the layer model reads the pose off the motion's line (see
+    /// contact; the layer model first steps any grid tick at or before the sample that the
+    /// physics task has not reached, then reads the pose off the motion's line (see
     /// `ContactPhysics::read_ahead`), and while the indenter rests extrapolates in time
     /// along the last two steps at least half a period apart (relaxation), never past the
     /// unloaded gel. Without on-demand stepping the newest wrench is held.
@@ -653,8 +657,14 @@ impl WrenchSource for ContactPhysics {
         );
         if cheap {
             self.catch_up(t_ns, true);
-        } else if let Some(w) = self.read_ahead(t_ns) {
-            return w;
+        } else {
+            // A sample at or past a grid tick reads from that tick's step: solved here if the
+            // physics task has not reached it yet (it then finds it done).
+            let period_ns = (1e9 / self.inner.config.rate_hz).max(1.0) as u64;
+            self.catch_up(t_ns / period_ns * period_ns, false);
+            if let Some(w) = self.read_ahead(t_ns) {
+                return w;
+            }
         }
         self.buffered(t_ns)
     }
