@@ -392,6 +392,11 @@ impl ContactPhysics {
         (0.5e9 / self.inner.config.rate_hz) as u64
     }
 
+    /// A physics period of clock time, ns (at least 1).
+    fn period_ns(&self) -> u64 {
+        (1e9 / self.inner.config.rate_hz).max(1.0) as u64
+    }
+
     /// With [`PhysicsConfig::on_demand`]: when the newest step is older than `t_ns`, steps at
     /// the poses the robot had at the physics ticks (multiples of the period) from the newest
     /// step up to `t_ns` (at most a second of them), and then probes at `t_ns` itself when
@@ -416,7 +421,7 @@ impl ContactPhysics {
         let Some(src) = src else {
             return;
         };
-        let period_ns = (1e9 / self.inner.config.rate_hz).max(1.0) as u64;
+        let period_ns = self.period_ns();
         let mut times = Vec::new();
         let from = newest
             .map_or(t_ns, |t| t + 1)
@@ -660,7 +665,7 @@ impl WrenchSource for ContactPhysics {
         } else {
             // A sample at or past a grid tick reads from that tick's step: solved here if the
             // physics task has not reached it yet (it then finds it done).
-            let period_ns = (1e9 / self.inner.config.rate_hz).max(1.0) as u64;
+            let period_ns = self.period_ns();
             self.catch_up(t_ns / period_ns * period_ns, false);
             if let Some(w) = self.read_ahead(t_ns) {
                 return w;

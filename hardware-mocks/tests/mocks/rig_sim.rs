@@ -781,6 +781,40 @@ async fn an_ft_reading_between_the_physics_steps_leaves_the_steps_as_they_were()
     assert!(in_contact >= 10, "{in_contact} ticks in contact");
 }
 
+/// The sensor physics of sim-source pressing the built-in `indenter` 0.6 mm into the gel in
+/// 200 ms, then sliding it at 300° by `slide_mm` at `speed_mm_s`; with the pose source that
+/// motion is (clock ns → pose).
+fn pressed_then_sliding(
+    indenter: &str,
+    speed_mm_s: f64,
+    slide_mm: f64,
+) -> (
+    ContactPhysics,
+    impl Fn(u64) -> (u64, Pose) + Copy + Send + Sync + 'static,
+) {
+    let cfg = RigConfig::sim_source();
+    let frame = cfg.sensor.surface_frame;
+    let physics = ContactPhysics::new(
+        frame,
+        cfg.elastomer.clone(),
+        Arc::new(Indenter::builtin(indenter).unwrap()),
+        PhysicsConfig::default(),
+        true,
+    )
+    .unwrap();
+    let (c, s) = (300f64.to_radians().cos(), 300f64.to_radians().sin());
+    let pose_at = move |t_ns: u64| {
+        let t_ms = t_ns as f64 * 1e-6;
+        let depth = 0.6 * (t_ms / 200.0).min(1.0);
+        let along = ((t_ms - 200.0) * speed_mm_s * 1e-3).clamp(0.0, slide_mm);
+        (
+            t_ns,
+            pose_above_surface(&frame, along * c, along * s, -depth),
+        )
+    };
+    (physics, pose_at)
+}
+
 /// The force must not jump where the camera's frames are, at the grid's ticks. A step does not
 /// leave a history that gives its own force back (the contact search ↔ friction loop does not
 /// settle where a ridged face slides), so a probe just after a tick that started from the
@@ -793,27 +827,8 @@ async fn an_ft_reading_between_the_physics_steps_leaves_the_steps_as_they_were()
 /// sub-samples make the force kinked, not smooth: up to 0.04 N measured; the jump was 0.18 N).
 #[tokio::test]
 async fn the_force_is_continuous_across_a_grid_tick_where_a_ridged_face_slides() {
-    let cfg = RigConfig::sim_source();
-    let frame = cfg.sensor.surface_frame;
-    let physics = ContactPhysics::new(
-        frame,
-        cfg.elastomer.clone(),
-        Arc::new(Indenter::builtin("paralines").unwrap()),
-        PhysicsConfig::default(),
-        true,
-    )
-    .unwrap();
-    let (c, s) = (300f64.to_radians().cos(), 300f64.to_radians().sin());
     // Down 0.6 mm in 200 ms, then the slide at 1 mm/s.
-    let pose_at = move |t_ns: u64| {
-        let t_ms = t_ns as f64 * 1e-6;
-        let depth = 0.6 * (t_ms / 200.0).min(1.0);
-        let along = ((t_ms - 200.0) * 1e-3).clamp(0.0, 1.0);
-        (
-            t_ns,
-            pose_above_surface(&frame, along * c, along * s, -depth),
-        )
-    };
+    let (physics, pose_at) = pressed_then_sliding("paralines", 1.0, 1.0);
     let (clock, _handle) = Clock::manual();
     let _task = physics.spawn(clock.clone(), Arc::new(pose_at));
     let period_ns = (1e9 / PhysicsConfig::default().rate_hz) as u64;
@@ -857,28 +872,9 @@ async fn the_force_is_continuous_across_a_grid_tick_where_a_ridged_face_slides()
 /// moves a label interpolated across it by up to its size.
 #[tokio::test(flavor = "current_thread")]
 async fn a_sliding_flat_face_changes_its_force_smoothly_between_ticks() {
-    let cfg = RigConfig::sim_source();
-    let frame = cfg.sensor.surface_frame;
     for name in ["hexagon", "dotin"] {
-        let physics = ContactPhysics::new(
-            frame,
-            cfg.elastomer.clone(),
-            Arc::new(Indenter::builtin(name).unwrap()),
-            PhysicsConfig::default(),
-            true,
-        )
-        .unwrap();
-        let (c, s) = (300f64.to_radians().cos(), 300f64.to_radians().sin());
         // Down 0.6 mm in 200 ms, then the slide at 2 mm/s for 300 ms.
-        let pose_at = move |t_ns: u64| {
-            let t_ms = t_ns as f64 * 1e-6;
-            let depth = 0.6 * (t_ms / 200.0).min(1.0);
-            let along = ((t_ms - 200.0) * 2e-3).clamp(0.0, 0.6);
-            (
-                t_ns,
-                pose_above_surface(&frame, along * c, along * s, -depth),
-            )
-        };
+        let (physics, pose_at) = pressed_then_sliding(name, 2.0, 0.6);
         let (clock, _handle) = Clock::manual();
         let _task = physics.spawn(clock.clone(), Arc::new(pose_at));
         let period_ns = (1e9 / PhysicsConfig::default().rate_hz) as u64;

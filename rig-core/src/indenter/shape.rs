@@ -278,12 +278,19 @@ impl Shape {
 
     /// Gap of this shape at `(x, y)` mm in the indenter frame, including `lift_mm`.
     pub fn gap_mm(&self, x: f64, y: f64) -> f64 {
+        let (u, v) = self.local(x, y);
+        self.lift_mm + self.local_gap(u, v)
+    }
+
+    /// `(x, y)` mm in the indenter frame, in the primitive's frame: about its centre, rotated
+    /// by −rotation.
+    fn local(&self, x: f64, y: f64) -> (f64, f64) {
         let dx = x - self.center_mm[0];
         let dy = y - self.center_mm[1];
-        // Rotate the query point into the primitive's frame (by −rotation).
-        let u = self.cos * dx + self.sin * dy;
-        let v = -self.sin * dx + self.cos * dy;
-        self.lift_mm + self.local_gap(u, v)
+        (
+            self.cos * dx + self.sin * dy,
+            -self.sin * dx + self.cos * dy,
+        )
     }
 
     /// Half-extents `[x, y]` of the axis-aligned box (in the indenter frame) that holds the shape.
@@ -304,10 +311,7 @@ impl Shape {
     /// is a wall (flat faces, a cap's rim), that is the top of the wall. `None` for random
     /// bumps, whose rims are not pressed.
     pub fn edge_mm(&self, x: f64, y: f64) -> Option<(f64, f64)> {
-        let dx = x - self.center_mm[0];
-        let dy = y - self.center_mm[1];
-        let u = self.cos * dx + self.sin * dy;
-        let v = -self.sin * dx + self.cos * dy;
+        let (u, v) = self.local(x, y);
         let rho = radius(u, v);
         let (gap, distance) = match &self.primitive {
             Primitive::SphereCap(p) => {
