@@ -191,3 +191,76 @@ fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
     // The run really pressed the gel (the cone at 0.8 mm pushes well over 0.1 N).
     assert!(deepest_fz < -0.1, "deepest true Fz {deepest_fz} N");
 }
+
+/// The label bound on the indenters whose labels were worst over their full plans: paralines
+/// (flat bars whose slide re-settles as it stops) and the flat-ended cylinder (the fastest
+/// unloading, about 0.08 N/ms at 5 mm/s). At 0.8 mm deep, three directions each, every axis
+/// of every frame is within 0.05 N of the simulator's true force, as over the full plans
+/// (`docs/experiments.md`). The F/T's noise (σ = 1/160 N) takes about half of that over a few
+/// thousand values; the rest is what the physics and the timing may add. The clock runs at ×2
+/// here, not the benchmark's ×10: at ×10 the host's scheduling delays (tens of µs) become
+/// hundreds of µs of clock time, and a test beside others on two cores should not be judged
+/// on them (`rig bench run` measures ×10 on an idle machine).
+#[test]
+fn labels_on_the_flat_faces_stay_within_0_05_n() {
+    let _g = common::one_rig_at_a_time();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = common::edited_sim_config(
+        tmp.path(),
+        "deep.toml",
+        &[("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.8]")],
+    );
+    for name in ["paralines", "cylinder"] {
+        let out_dir = tmp.path().join(name);
+        let out = Command::new(env!("CARGO_BIN_EXE_rig"))
+            .args([
+                "run",
+                "--indenter",
+                name,
+                "--limit",
+                "3",
+                "--speed-factor",
+                "2",
+            ])
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&out_dir)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            common::output_text(&out)
+        );
+        let manifest = Manifest::load(&out_dir).unwrap();
+        assert_eq!(manifest.trajectories.len(), 3, "{name}");
+        let (mut worst, mut at) = (0.0f64, String::new());
+        let (mut frames, mut deepest_fz) = (0, 0.0f64);
+        for t in &manifest.trajectories {
+            let f = read(&out_dir.join(format!("{}.mcap", t.id)));
+            for (seq, (paired, status, _, stage)) in &f.paired {
+                assert_eq!(status, "ok", "{name} {} frame {seq}", t.id);
+                let paired = paired.expect("status ok has a wrench");
+                let truth = f.truth[seq];
+                frames += 1;
+                deepest_fz = deepest_fz.min(truth[2]);
+                for k in 0..3 {
+                    let err = (paired[k] - truth[k]).abs();
+                    if err > worst {
+                        worst = err;
+                        at = format!("{} frame {seq} ({stage:?}) axis {k}", t.id);
+                    }
+                }
+            }
+        }
+        assert!(frames > 300, "{name}: {frames} frames");
+        // Pressed for real: a flat face 0.8 mm deep loads the gel with several newtons.
+        assert!(deepest_fz < -5.0, "{name}: deepest true Fz {deepest_fz} N");
+        assert!(
+            worst <= 0.05,
+            "{name}: |paired − true| {worst:.4} N at {at} (bound 0.05 N)"
+        );
+        eprintln!("{name}: {frames} frames, largest |paired − true| {worst:.4} N at {at}");
+    }
+}

@@ -29,7 +29,11 @@
 //! does not settle), so the force jumps where the probes change the history they start from,
 //! by up to 0.14 N where paralines slides. The probes start from the nearest tick's
 //! ([`ContactPhysics::step_at`]), so the jump falls half-way between ticks, away from the
-//! frames of a camera on the grid.
+//! frames of a camera on the grid. Each buffered solve keeps the tick it started from, and an
+//! F/T reading is anchored only on a solve from its own start (the nearest tick's), taking a
+//! slope only from two solves of one start (`read_ahead.rs`): a reading past half-way that
+//! ran on along the line of the solves before it carried the jump to the next frame (0.05 to
+//! 0.08 N where paralines' slide stops).
 //!
 //! What remains (`docs/experiments.md`, "Labels: solves between the grid's steps become
 //! probes"): at ×10 the host dates the F/T's samples about 0.1–0.2 ms of clock time late,
@@ -39,8 +43,10 @@
 //! (`sim/contact/geometry.rs`, 0.003–0.045 N). An F/T sample at or past a tick the physics
 //! task had not reached yet was read off the line of the two steps before it, so where the
 //! contact re-settled (a slide stopping) a frame's label kept the old force (paralines 0.25 N);
-//! such a sample now steps its tick first. Paralines still has runs with a frame 0.15 N off
-//! (docs/experiments.md, "F/T samples read from their tick's step").
+//! such a sample now steps its tick first. What is left is the F/T's noise (σ = 1/160 N) and,
+//! where a flat face lifts off at 5 mm/s, the F/T's transport latency at ×10 (the host dates
+//! its samples about 0.15 ms of clock time late, 0.01 N at 0.07 N/ms; docs/experiments.md,
+//! "Labels: readings anchored on their own start").
 
 use std::collections::VecDeque;
 use std::io;
@@ -63,7 +69,7 @@ use crate::truth::WrenchSource;
 
 use super::config::PhysicsConfig;
 use super::lock::lock;
-use super::read_ahead::{Ahead, Sample, along, position, read_off_line};
+use super::read_ahead::{Ahead, Sample, along, in_time, position, read_off_line};
 use super::tape::{ContactCache, Episode, TapeStats};
 
 /// How far simulated time may run ahead of the contact physics, in real time, beyond the tick
@@ -297,6 +303,13 @@ impl ContactPhysics {
         self.inner.steps.fetch_add(1, Ordering::Relaxed);
         let raw = indenter_pose(&self.inner.surface_frame, tcp);
         let mut new_field = None;
+        // The grid tick whose starting history this solve begins from (see `Sample::start_ns`).
+        let period_ns = self.period_ns();
+        let mut start_ns = if commit {
+            t_ns
+        } else {
+            self.nearest_tick_ns(t_ns)
+        };
         let result = if raw.depth_mm > 0.0 {
             self.inner.contact_steps.fetch_add(1, Ordering::Relaxed);
             if commit {
@@ -315,8 +328,15 @@ impl ContactPhysics {
                 episode.step(sim, &scene, t_ns, self.inner.want_field)
             } else {
                 let from = match newest_commit {
-                    Some((t, from)) if t_ns < *t + half_period_ns => from.as_ref(),
-                    _ => None,
+                    Some((t, from)) if t_ns < *t + half_period_ns => {
+                        start_ns = *t;
+                        from.as_ref()
+                    }
+                    Some((t, _)) => {
+                        start_ns = *t + period_ns;
+                        None
+                    }
+                    None => None,
                 };
                 episode.probe(sim, from, &scene, t_ns, self.inner.want_field)
             };
@@ -367,6 +387,7 @@ impl ContactPhysics {
             t_ns,
             w,
             at_mm: position(&raw),
+            start_ns,
         });
         if let Some(f) = new_field
             && res
@@ -395,6 +416,13 @@ impl ContactPhysics {
     /// A physics period of clock time, ns (at least 1).
     fn period_ns(&self) -> u64 {
         (1e9 / self.inner.config.rate_hz).max(1.0) as u64
+    }
+
+    /// The grid tick nearest `t_ns` (the later one half-way): the tick whose starting history
+    /// a solve at `t_ns` begins from ([`Self::step_at`]).
+    fn nearest_tick_ns(&self, t_ns: u64) -> u64 {
+        let period_ns = self.period_ns();
+        (t_ns + period_ns / 2) / period_ns * period_ns
     }
 
     /// With [`PhysicsConfig::on_demand`]: when the newest step is older than `t_ns`, steps at
@@ -594,7 +622,7 @@ impl ContactPhysics {
         for _ in 0..2 {
             let ahead = {
                 let res = lock(&self.inner.results);
-                read_off_line(&res.ring, t_ns, &at)
+                read_off_line(&res.ring, t_ns, &at, self.nearest_tick_ns(t_ns))
             };
             match ahead {
                 Ahead::Wrench(w) => return Some(w),
@@ -627,16 +655,7 @@ impl ContactPhysics {
             if !self.inner.config.on_demand || t_ns == last.t_ns {
                 return last.w;
             }
-            let half_period = self.half_period_ns();
-            let Some(before) = ring
-                .iter()
-                .rev()
-                .find(|s| s.t_ns + half_period <= last.t_ns)
-            else {
-                return last.w;
-            };
-            let s = ((t_ns - last.t_ns) as f64 / (last.t_ns - before.t_ns) as f64).min(2.0);
-            return along(&before.w, &last.w, 1.0 + s);
+            return in_time(ring, t_ns, self.half_period_ns());
         }
         // First sample strictly after t_ns; 1 ≤ i < len here.
         let i = ring.partition_point(|s| s.t_ns <= t_ns);
