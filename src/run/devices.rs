@@ -25,6 +25,10 @@ pub(super) struct Devices {
     /// The F/T's full range and front end, for the manifest (`null` without an F/T sensor).
     pub calibration: serde_json::Value,
     pub ft_rate_hz: f64,
+    /// The F/T counts its samples on the host's own clock (the simulated rig's twins): its
+    /// drift is zero by construction, so the clock map fits only the offset. A lab's F/T has a
+    /// crystal of its own, whose drift is estimated.
+    pub ft_on_host_clock: bool,
 }
 
 fn calibration_json(settings: &FrontEndSettings, description: &str) -> serde_json::Value {
@@ -94,6 +98,7 @@ async fn open_lab_devices(config: &RigConfig, clock: &Clock) -> anyhow::Result<D
         ft,
         camera,
         ft_rate_hz,
+        ft_on_host_clock: false,
     })
 }
 
@@ -188,6 +193,7 @@ pub(super) async fn open_rig(
         ft_rate_hz,
         ft: started.ft,
         camera: started.camera,
+        ft_on_host_clock: true,
     };
     tracing::info!(
         "simulated rig: UR5e RTDE {}, {}, camera {}; clock ×{}",

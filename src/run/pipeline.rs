@@ -81,6 +81,11 @@ impl Pipeline {
             jump_tolerance_ns: 1e9 * speed,
             ..EstimatorConfig::default()
         };
+        // A skew fitted over the first seconds is mostly the latency's jitter over their span:
+        // at ×10 the host's tens of µs of scheduling jitter are hundreds of µs of clock time, and
+        // the first trajectory's labels were up to 0.05 N off where the force changes fast (a
+        // flat face lifting off). The simulated F/T counts on the host's clock, so its rate is
+        // known exactly; a lab's is fitted.
         let pairer = PairerConfig {
             method: InterpMethod::Cubic,
             frame_timebase: DeviceTimebase::HostNanos,
@@ -88,7 +93,10 @@ impl Pipeline {
                 bits: 63,
                 nominal_hz: devices.ft_rate_hz,
             },
-            wrench_clock: no_jumps.clone(),
+            wrench_clock: EstimatorConfig {
+                estimate_drift: !devices.ft_on_host_clock,
+                ..no_jumps.clone()
+            },
             ..PairerConfig::default()
         };
         // The disk-stall drill's hold on the writer (the fault injector closes it).
