@@ -55,18 +55,20 @@ fn read(path: &Path) -> Frames {
     f
 }
 
-#[test]
-fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
-    let _g = common::one_rig_at_a_time();
-    let tmp = tempfile::tempdir().unwrap();
+/// `rig run --indenter NAME` with `extra` arguments on the simulated rig's config edited to its
+/// deepest layer only (0.8 mm, where the contact force is largest and changes fastest), into
+/// `dir/NAME`; asserts it succeeded and returns the output directory.
+fn run_deep(dir: &Path, name: &str, extra: &[&str]) -> std::path::PathBuf {
     let cfg = common::edited_sim_config(
-        tmp.path(),
+        dir,
         "deep.toml",
         &[("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.8]")],
     );
-    let out_dir = tmp.path().join("run");
+    let out_dir = dir.join(name);
     let out = Command::new(env!("CARGO_BIN_EXE_rig"))
-        .args(["run", "--indenter", "cone", "--limit", "2", "--config"])
+        .args(["run", "--indenter", name])
+        .args(extra)
+        .arg("--config")
         .arg(&cfg)
         .arg("--out")
         .arg(&out_dir)
@@ -74,10 +76,17 @@ fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
         .unwrap();
     assert!(
         out.status.success(),
-        "rig run failed:\n{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
+        "rig run {name}: {}",
+        common::output_text(&out)
     );
+    out_dir
+}
+
+#[test]
+fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
+    let _g = common::one_rig_at_a_time();
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = run_deep(tmp.path(), "cone", &["--limit", "2"]);
 
     let manifest = Manifest::load(&out_dir).unwrap();
     let full: Vec<f64> = manifest.calibration["max_loads"]
@@ -205,34 +214,8 @@ fn every_frame_is_paired_with_the_true_wrench_at_its_capture_time() {
 fn labels_on_the_flat_faces_stay_within_0_05_n() {
     let _g = common::one_rig_at_a_time();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = common::edited_sim_config(
-        tmp.path(),
-        "deep.toml",
-        &[("depths_mm = [0.2, 0.4, 0.6, 0.8]", "depths_mm = [0.8]")],
-    );
     for name in ["paralines", "cylinder"] {
-        let out_dir = tmp.path().join(name);
-        let out = Command::new(env!("CARGO_BIN_EXE_rig"))
-            .args([
-                "run",
-                "--indenter",
-                name,
-                "--limit",
-                "3",
-                "--speed-factor",
-                "2",
-            ])
-            .arg("--config")
-            .arg(&cfg)
-            .arg("--out")
-            .arg(&out_dir)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{name}: {}",
-            common::output_text(&out)
-        );
+        let out_dir = run_deep(tmp.path(), name, &["--limit", "3", "--speed-factor", "2"]);
         let manifest = Manifest::load(&out_dir).unwrap();
         assert_eq!(manifest.trajectories.len(), 3, "{name}");
         let (mut worst, mut at) = (0.0f64, String::new());

@@ -189,10 +189,15 @@ pub(super) fn read_off_line(
         .find(|(_, d)| dot(d, d).sqrt() >= MIN_BASE_MM)
         .filter(|(s, _)| s.at_mm[2] > 0.0)
         .unwrap_or((s0, d));
-    let s = dot(&v, &d) / dot(&d, &d);
-    let off: [f64; 3] = std::array::from_fn(|k| v[k] - s * d[k]);
+    // A displacement along the line, in units of `d`, and how far it lies off the line (mm).
+    let onto = |x: &[f64; 3]| {
+        let k = dot(x, &d) / dot(&d, &d);
+        let off: [f64; 3] = std::array::from_fn(|i| x[i] - k * d[i]);
+        (k, dot(&off, &off).sqrt())
+    };
+    let (s, off) = onto(&v);
     if !(0.0..=MAX_LINE_STEPS).contains(&s)
-        || dot(&off, &off).sqrt() > OFF_LINE_MM
+        || off > OFF_LINE_MM
         || s * dot(&d, &d).sqrt() > MAX_LINE_MM
     {
         return Ahead::Solve;
@@ -202,27 +207,19 @@ pub(super) fn read_off_line(
     }
     // The baseline began from another start: the slope of the line comes from it and an
     // earlier solve of its own start on the same line, and is laid from the newest step.
-    let e_of = |q: &Sample| sub(&s0.at_mm, &q.at_mm);
-    let Some(q) = ring
+    let Some((q, k)) = ring
         .iter()
         .rev()
         .filter(|q| q.t_ns < s0.t_ns && q.start_ns == s0.start_ns)
-        .find(|q| {
-            let e = e_of(q);
-            dot(&e, &e).sqrt() >= MIN_BASE_MM
-        })
-        .filter(|q| {
-            let e = e_of(q);
-            let k = dot(&e, &d) / dot(&d, &d);
-            let off: [f64; 3] = std::array::from_fn(|i| e[i] - k * d[i]);
-            q.at_mm[2] > 0.0 && k > 0.0 && dot(&off, &off).sqrt() <= OFF_LINE_MM
-        })
+        .map(|q| (q, sub(&s0.at_mm, &q.at_mm)))
+        .find(|(_, e)| dot(e, e).sqrt() >= MIN_BASE_MM)
+        .map(|(q, e)| (q, onto(&e)))
+        .filter(|(q, (k, off))| q.at_mm[2] > 0.0 && *k > 0.0 && *off <= OFF_LINE_MM)
+        .map(|(q, (k, _))| (q, k))
     else {
         return Ahead::Solve;
     };
-    // In units of the pair's own spacing along the line.
-    let e = e_of(q);
-    let k = dot(&e, &d) / dot(&d, &d);
+    // `k`: the pair's own spacing along the line, in units of `d`.
     Ahead::Wrench(along(&shifted(&q.w, &s0.w, &s1.w), &s1.w, 1.0 + s / k))
 }
 
