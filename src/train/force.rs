@@ -79,6 +79,12 @@ pub struct ForceConfig {
     /// ([`super::data::mirror_flow_image`]): new contact shapes from the same recordings.
     /// The paper's image modalities are never mirrored (their LEDs light from one side).
     pub mirror: bool,
+    /// The encoder's head pools its last feature map to one vector (ResNet's global average
+    /// pool) even on small inputs, which otherwise flatten the map ([`ForceShape::spatial`]).
+    /// The pool reads a contact the same wherever its shading falls, and so reads shapes it
+    /// was not trained on better; the flattened map keeps where the contact sits, the cue for
+    /// shear in the paper's image modalities.
+    pub global_pool: bool,
 }
 
 impl Default for ForceConfig {
@@ -100,6 +106,7 @@ impl Default for ForceConfig {
             seed: 1,
             range: None,
             mirror: false,
+            global_pool: false,
         }
     }
 }
@@ -219,7 +226,7 @@ pub fn shape_for(cfg: &ForceConfig, spec: &ImageSpec) -> ForceShape {
         lstm: cfg.lstm,
         residual: cfg.lstm && cfg.lstm_residual,
         imagenet_stem,
-        spatial: (cells <= 64).then_some(map),
+        spatial: (cells <= 64 && !cfg.global_pool).then_some(map),
     }
 }
 
@@ -812,6 +819,25 @@ mod tests {
             ..cfg
         };
         assert!((0..4).all(|e| flat.lr_at(e, 1, 3) == 1e-2));
+    }
+
+    #[test]
+    fn a_pooled_head_drops_the_map_that_small_inputs_otherwise_keep() {
+        let spec = ImageSpec {
+            width: 32,
+            height: 24,
+            modality: super::super::modality::Modality::FlowShading,
+        };
+        let map = shape_for(&ForceConfig::default(), &spec);
+        assert_eq!(map.spatial, Some(ForceShape::final_map(false, 24, 32)));
+        let pooled = ForceConfig {
+            global_pool: true,
+            ..ForceConfig::default()
+        };
+        assert_eq!(shape_for(&pooled, &spec).spatial, None);
+        // Older settings files, without the key, keep the map.
+        let old: ForceConfig = toml::from_str("epochs = 2").unwrap();
+        assert!(!old.global_pool);
     }
 
     /// `rig demo` trains two networks side by side. A network's initial weights must be drawn

@@ -137,6 +137,17 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
     };
     let before = models(&out);
     assert_eq!(before.len(), 13);
+    // Marker flow trains on mirrored sequences through a pooled head (the protocol's
+    // marker_force); the paper's methods as the paper does, on the flattened map.
+    for e in std::fs::read_dir(out.join("models")).unwrap() {
+        let path = e.unwrap().path().join("model.json");
+        let info: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        let ours = info["method"].as_str().unwrap().starts_with("marker flow");
+        assert_eq!(info["config"]["mirror"], ours, "{}", path.display());
+        assert_eq!(info["config"]["global_pool"], ours, "{}", path.display());
+        assert_eq!(info["shape"]["spatial"].is_null(), ours, "{}", path.display());
+    }
     let second = reproduce(&out);
     assert!(second.status.success(), "{}", common::output_text(&second));
     let stderr = String::from_utf8_lossy(&second.stderr);

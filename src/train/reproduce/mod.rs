@@ -166,6 +166,7 @@ pub fn run(
                     dir,
                     translated: method.translated,
                     lstm: method.lstm,
+                    markers: method.markers,
                 });
             }
         }
@@ -397,6 +398,8 @@ struct Job {
     /// Trained on the translated images (else on the source sensor's own).
     translated: bool,
     lstm: bool,
+    /// A marker-flow method's (trained with `Protocol::marker_force`).
+    markers: bool,
 }
 
 /// The force models' shared queue, taken in order by each worker.
@@ -470,10 +473,15 @@ impl Trainer<'_> {
                 set
             }
         };
+        let base = if job.markers {
+            &self.protocol.marker_force
+        } else {
+            &self.protocol.force
+        };
         let cfg = ForceConfig {
             lstm: job.lstm,
             seed: job.seed,
-            ..self.protocol.force.clone()
+            ..base.clone()
         };
         train_force(&set, &cfg, &job.method, job.modality, &job.dir)?;
         std::fs::write(job.dir.join("DONE"), b"")?;
