@@ -146,7 +146,12 @@ fn the_tiny_protocol_runs_reports_and_resumes_without_redoing_work() {
         let ours = info["method"].as_str().unwrap().starts_with("marker flow");
         assert_eq!(info["config"]["mirror"], ours, "{}", path.display());
         assert_eq!(info["config"]["global_pool"], ours, "{}", path.display());
-        assert_eq!(info["shape"]["spatial"].is_null(), ours, "{}", path.display());
+        assert_eq!(
+            info["shape"]["spatial"].is_null(),
+            ours,
+            "{}",
+            path.display()
+        );
     }
     let second = reproduce(&out);
     assert!(second.status.success(), "{}", common::output_text(&second));
