@@ -223,14 +223,21 @@ fn a_replay_gives_eval_s_forces_frame_for_frame() {
 fn a_replay_of_a_flow_model_gives_eval_s_forces_frame_for_frame() {
     let f = fixture();
     for modality in Modality::MARKERS {
-        replay_equals_eval(f, modality);
+        replay_equals_eval(f, modality, &tiny_config());
     }
+    // Marker flow as `rig reproduce` trains it: the encoder pools its last map.
+    let pooled = ForceConfig {
+        global_pool: true,
+        ..tiny_config()
+    };
+    replay_equals_eval(f, Modality::FlowShading, &pooled);
 }
 
-fn replay_equals_eval(f: &Fixture, modality: Modality) {
+fn replay_equals_eval(f: &Fixture, modality: Modality, cfg: &ForceConfig) {
     let spec = ImageSpec { modality, ..SPEC };
     // Two copies of one untrained model (the same seed): one for eval, one to replay with.
-    let model = ForceModel::untrained(&tiny_config(), spec, 40);
+    let model = ForceModel::untrained(cfg, spec, 40);
+    assert_eq!(model.info.shape.spatial.is_none(), cfg.global_pool);
     let set = data::load_eval(&f.data, &spec, false).unwrap();
     // The flow images move: the markers were tracked through the presses.
     let moved = set
@@ -293,7 +300,7 @@ fn replay_equals_eval(f: &Fixture, modality: Modality) {
     );
 
     let mut predictor = Predictor::new(
-        ForceModel::untrained(&tiny_config(), spec, 40),
+        ForceModel::untrained(cfg, spec, 40),
         PredictorOptions {
             stride: Some(1),
             ..PredictorOptions::default()
