@@ -50,6 +50,18 @@ pub struct Protocol {
     pub fid: FidConfig,
 }
 
+/// The marker-flow methods' force settings on `base`: mirrored sequences (new contact shapes from
+/// the same recordings) and a pooled head (a contact read alike wherever it shades), which read
+/// the unseen indenters' Fz where the paper's settings did not (docs/experiments.md, *Marker
+/// flow's settings for unseen shapes*).
+fn marker_flow(base: ForceConfig) -> ForceConfig {
+    ForceConfig {
+        mirror: true,
+        global_pool: true,
+        ..base
+    }
+}
+
 impl Protocol {
     pub fn new(scale: Scale) -> Self {
         // The built-in set is the paper's 18 and `paralines`.
@@ -70,6 +82,12 @@ impl Protocol {
         // length of training.
         let quick = DemoPlan::new(true);
         let (small_gan, small_force) = (quick.translate, quick.force);
+        let paper_force = ForceConfig {
+            depth: Depth::R50,
+            width: 64,
+            epochs: 20,
+            ..ForceConfig::default()
+        };
         match scale {
             Scale::Tiny => Self {
                 scale,
@@ -93,12 +111,10 @@ impl Protocol {
                     epochs: 2,
                     ..small_force
                 },
-                marker_force: ForceConfig {
+                marker_force: marker_flow(ForceConfig {
                     epochs: 2,
-                    mirror: true,
-                    global_pool: true,
                     ..small_force
-                },
+                }),
                 fid: FidConfig {
                     max_images: 16,
                     ..FidConfig::default()
@@ -137,22 +153,20 @@ impl Protocol {
                 // force is learnt in that, and a third epoch learnt no shear on the target either.
                 // What stops shear on sim-target is the translation (its markers' pitch), not the
                 // force model (docs/experiments.md, same section). The rate decays step by step
-                // to the quick demo's lr_final; four epochs read marker flow's shear better and
-                // its Fz no better (*A learning rate that settles*).
+                // to the quick demo's lr_final (*A learning rate that settles*). Marker flow
+                // trains on its own settings (`marker_force`, below).
                 force: ForceConfig {
                     epochs: 2,
                     ..small_force
                 },
-                // Marker flow reads the unseen indenters' Fz from mirrored sequences (new contact
-                // shapes from the same recordings), over 4 epochs, through a pooled head (a
-                // contact read alike wherever it shades): R² 0.883 against 0.787 over 3 seeds on
-                // sim-target (docs/experiments.md, *Marker flow's settings for unseen shapes*).
-                marker_force: ForceConfig {
+                // Marker flow over 4 epochs, mirrored and pooled: R² Fz unseen 0.883 against
+                // 0.787 on the paper's settings, 3 seeds on sim-target; mirrored without the pool,
+                // 4 epochs read 0.856 and 6 read 0.845 (docs/experiments.md, *Marker flow's
+                // settings for unseen shapes*).
+                marker_force: marker_flow(ForceConfig {
                     epochs: 4,
-                    mirror: true,
-                    global_pool: true,
                     ..small_force
-                },
+                }),
                 // 2048 images of each set and group, Inception's feature size: from fewer the
                 // sample covariance is singular and FID is biased upward for every pair alike,
                 // which pulls the after/before ratio towards 1 (docs/experiments.md, same section).
@@ -180,20 +194,8 @@ impl Protocol {
                     steps_per_epoch: Some(1000),
                     ..TranslateConfig::default()
                 },
-                force: ForceConfig {
-                    depth: Depth::R50,
-                    width: 64,
-                    epochs: 20,
-                    ..ForceConfig::default()
-                },
-                marker_force: ForceConfig {
-                    depth: Depth::R50,
-                    width: 64,
-                    epochs: 20,
-                    mirror: true,
-                    global_pool: true,
-                    ..ForceConfig::default()
-                },
+                force: paper_force.clone(),
+                marker_force: marker_flow(paper_force),
                 // The feature size, as at the CPU scale.
                 fid: FidConfig {
                     max_images: FEATURE_DIM,
